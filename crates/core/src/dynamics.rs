@@ -1,0 +1,260 @@
+//! O(N) dynamics of the chain, in both of the seeds' formulations.
+//!
+//! The mass matrix is `A_ab = K_ab cos(theta_a - theta_b)` with `K_aa = diag_a` and
+//! `K_ab = l_min(a,b) h_max(a,b)` off the diagonal. With `n_a = (cos theta_a, sin theta_a)` row `a`
+//! of `A x` reads `diag_a x_a + h_a n_a . P_a + l_a n_a . Q_a`, where `P_a = sum_{b<a} l_b n_b x_b`
+//! and `Q_a = sum_{b>a} h_b n_b x_b`: a diagonal plus two rank-2 semiseparable parts. `solve`
+//! eliminates from the free end towards the pivot (the downstream links act on joint `a+1` like
+//! an articulated 2x2 inertia `G` and a bias `w`), then substitutes forwards: O(N), no N x N storage.
+//!
+//! Lagrangian form: `A(theta) theta_ddot = tau - g h sin(theta) - sum_b K_ab sin(theta_a - theta_b) omega_b^2`.
+//! Hamiltonian form: `theta_dot = A^-1 p`,
+//! `p_dot_a = tau_a - g h_a sin(theta_a) - omega_a sum_b K_ab sin(theta_a - theta_b) omega_b`.
+use crate::model::Chain;
+
+/// Pivots below this fraction of the diagonal mean the mass matrix is numerically singular.
+const PIVOT_TOL: f64 = 1e-14;
+
+/// The mass matrix lost positive definiteness at link `.0` (a near-singular configuration).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Singular(pub usize);
+
+impl Singular {
+    pub fn reason(self) -> String {
+        format!("the mass matrix is singular at link {} in this configuration", self.0)
+    }
+}
+
+/// Work buffers for one chain size; reuse one per thread in hot loops.
+#[derive(Debug, Clone)]
+pub struct Workspace {
+    sin: Vec<f64>,
+    cos: Vec<f64>,
+    u: Vec<[f64; 2]>,
+    dinv: Vec<f64>,
+}
+
+impl Workspace {
+    pub fn new(n: usize) -> Self {
+        Workspace { sin: vec![0.0; n], cos: vec![0.0; n], u: vec![[0.0; 2]; n], dinv: vec![0.0; n] }
+    }
+}
+
+impl Chain {
+    #[inline(always)]
+    fn trig(&self, theta: &[f64], ws: &mut Workspace) {
+        for ((t, s), c) in theta.iter().zip(&mut ws.sin).zip(&mut ws.cos) {
+            (*s, *c) = t.sin_cos();
+        }
+    }
+
+    /// Backward elimination of `A x = r` (`x` holds `r` on entry, the reduced right-hand side
+    /// `rho` on exit); the caller finishes with `substitute`. `extra(a)` is added to `r_a` just
+    /// before it is used, so callers can fold in suffix sums over the links below `a`.
+    #[inline(always)]
+    fn eliminate(
+        &self,
+        ws: &mut Workspace,
+        x: &mut [f64],
+        mut extra: impl FnMut(usize, f64, f64) -> f64,
+    ) -> Result<(), Singular> {
+        let n = self.n();
+        let (l, h, d) = (&self.lengths[..n], &self.h[..n], &self.diag[..n]);
+        let (s, c, u, dinv) = (&ws.sin[..n], &ws.cos[..n], &mut ws.u[..n], &mut ws.dinv[..n]);
+        let (mut gxx, mut gxy, mut gyy, mut wx, mut wy) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        for a in (0..n).rev() {
+            let (nx, ny, la) = (c[a], s[a], l[a]);
+            let (gnx, gny) = (gxx * nx + gxy * ny, gxy * nx + gyy * ny);
+            let pivot = d[a] - la * la * (nx * gnx + ny * gny);
+            if !(pivot > PIVOT_TOL * d[a]) {
+                return Err(Singular(a));
+            }
+            let inv = 1.0 / pivot;
+            let (ux, uy) = (h[a] * nx - la * gnx, h[a] * ny - la * gny);
+            let rho = x[a] + extra(a, nx, ny) - la * (nx * wx + ny * wy);
+            gxx += ux * ux * inv;
+            gxy += ux * uy * inv;
+            gyy += uy * uy * inv;
+            wx += ux * rho * inv;
+            wy += uy * rho * inv;
+            u[a] = [ux, uy];
+            dinv[a] = inv;
+            x[a] = rho;
+        }
+        Ok(())
+    }
+
+    /// Forward substitution after `eliminate`; `each(a, x_a, Px, Py)` sees each solved entry with
+    /// the prefix sum `P_a = sum_{b<a} l_b n_b x_b` before `x_a` is added to it.
+    #[inline(always)]
+    fn substitute(&self, ws: &Workspace, x: &mut [f64], mut each: impl FnMut(usize, f64, f64, f64)) {
+        let n = self.n();
+        let (l, s, c, u, dinv) = (&self.lengths[..n], &ws.sin[..n], &ws.cos[..n], &ws.u[..n], &ws.dinv[..n]);
+        let (mut px, mut py) = (0.0, 0.0);
+        for a in 0..n {
+            let xa = (x[a] - (u[a][0] * px + u[a][1] * py)) * dinv[a];
+            x[a] = xa;
+            each(a, xa, px, py);
+            px += l[a] * c[a] * xa;
+            py += l[a] * s[a] * xa;
+        }
+    }
+
+    /// `theta_ddot` for generalized torques `tau` (conjugate to the absolute angles). O(N).
+    pub fn accelerations_into(
+        &self,
+        theta: &[f64],
+        omega: &[f64],
+        tau: &[f64],
+        out: &mut [f64],
+        ws: &mut Workspace,
+    ) -> Result<(), Singular> {
+        let n = self.n();
+        let (l, h, g) = (&self.lengths[..n], &self.h[..n], self.g);
+        let (omega, tau, out) = (&omega[..n], &tau[..n], &mut out[..n]);
+        self.trig(theta, ws);
+        // Gravity and the centripetal pull of the links above: sum_{b<a} l_b w_b^2 sin(th_a - th_b).
+        let (mut cu, mut su) = (0.0, 0.0);
+        for a in 0..n {
+            let (s, c) = (ws.sin[a], ws.cos[a]);
+            out[a] = tau[a] - h[a] * (g * s + s * cu - c * su);
+            let w2l = omega[a] * omega[a] * l[a];
+            cu += w2l * c;
+            su += w2l * s;
+        }
+        // The links below: l_a sum_{b>a} h_b w_b^2 sin(th_a - th_b), folded into the elimination.
+        let (mut cd, mut sd) = (0.0, 0.0);
+        self.eliminate(ws, out, |a, c, s| {
+            let e = -l[a] * (s * cd - c * sd);
+            let w2h = omega[a] * omega[a] * h[a];
+            cd += w2h * c;
+            sd += w2h * s;
+            e
+        })?;
+        self.substitute(ws, out, |_, _, _, _| {});
+        Ok(())
+    }
+
+    /// `omega = A(theta)^-1 p`. O(N).
+    pub fn velocities_into(&self, theta: &[f64], p: &[f64], out: &mut [f64], ws: &mut Workspace) -> Result<(), Singular> {
+        let n = self.n();
+        self.trig(theta, ws);
+        out[..n].copy_from_slice(&p[..n]);
+        self.eliminate(ws, &mut out[..n], |_, _, _| 0.0)?;
+        self.substitute(ws, &mut out[..n], |_, _, _, _| {});
+        Ok(())
+    }
+
+    /// Hamilton's equations: `theta_dot = A^-1 p`, then `p_dot`. `tau(omega, out)` writes the
+    /// generalized torque once the velocities are known, so state feedback sees them. O(N).
+    pub fn hamilton_into<E>(
+        &self,
+        theta: &[f64],
+        p: &[f64],
+        theta_dot: &mut [f64],
+        p_dot: &mut [f64],
+        ws: &mut Workspace,
+        tau: impl FnOnce(&[f64], &mut [f64]) -> Result<(), E>,
+    ) -> Result<Result<(), E>, Singular> {
+        let n = self.n();
+        let (l, h, g) = (&self.lengths[..n], &self.h[..n], self.g);
+        let (omega, p_dot) = (&mut theta_dot[..n], &mut p_dot[..n]);
+        self.trig(theta, ws);
+        omega.copy_from_slice(&p[..n]);
+        self.eliminate(ws, omega, |_, _, _| 0.0)?;
+        self.substitute(ws, omega, |_, _, _, _| {});
+        if let Err(e) = tau(omega, p_dot) {
+            return Ok(Err(e));
+        }
+        let (s, c) = (&ws.sin[..n], &ws.cos[..n]);
+        // dT/dtheta_a = -omega_a sum_b K_ab sin(th_a - th_b) omega_b, split at a: links above, then below.
+        let (mut cu, mut su) = (0.0, 0.0);
+        for a in 0..n {
+            p_dot[a] -= h[a] * (g * s[a] + omega[a] * (s[a] * cu - c[a] * su));
+            cu += l[a] * omega[a] * c[a];
+            su += l[a] * omega[a] * s[a];
+        }
+        let (mut cd, mut sd) = (0.0, 0.0);
+        for a in (0..n).rev() {
+            p_dot[a] -= l[a] * omega[a] * (s[a] * cd - c[a] * sd);
+            cd += h[a] * omega[a] * c[a];
+            sd += h[a] * omega[a] * s[a];
+        }
+        Ok(Ok(()))
+    }
+
+    /// `p = A(theta) omega`. O(N).
+    pub fn momenta_into(&self, theta: &[f64], omega: &[f64], out: &mut [f64], ws: &mut Workspace) {
+        let n = self.n();
+        let (l, h, d) = (&self.lengths[..n], &self.h[..n], &self.diag[..n]);
+        let (omega, out) = (&omega[..n], &mut out[..n]);
+        self.trig(theta, ws);
+        let (s, c) = (&ws.sin[..n], &ws.cos[..n]);
+        let (mut px, mut py) = (0.0, 0.0);
+        for a in 0..n {
+            out[a] = d[a] * omega[a] + h[a] * (c[a] * px + s[a] * py);
+            px += l[a] * c[a] * omega[a];
+            py += l[a] * s[a] * omega[a];
+        }
+        let (mut qx, mut qy) = (0.0, 0.0);
+        for a in (0..n).rev() {
+            out[a] += l[a] * (c[a] * qx + s[a] * qy);
+            qx += h[a] * c[a] * omega[a];
+            qy += h[a] * s[a] * omega[a];
+        }
+    }
+
+    /// Kinetic energy `T = omega . A omega / 2`. O(N); `scratch` holds N values.
+    pub fn kinetic_energy(&self, theta: &[f64], omega: &[f64], scratch: &mut [f64], ws: &mut Workspace) -> f64 {
+        self.momenta_into(theta, omega, scratch, ws);
+        0.5 * omega.iter().zip(scratch.iter()).map(|(w, p)| w * p).sum::<f64>()
+    }
+
+    /// Potential energy `U = sum m_i g y_com_i = -g sum h_i cos(theta_i)`, zero at the pivot height.
+    pub fn potential_energy(&self, theta: &[f64]) -> f64 {
+        -self.g * self.h.iter().zip(theta).map(|(h, t)| h * t.cos()).sum::<f64>()
+    }
+
+    /// Joint positions: row `i` of `out` (length 2N, x then y) is the far end of link `i`.
+    pub fn positions_into(&self, theta: &[f64], out: &mut [f64]) {
+        let (mut x, mut y) = (0.0, 0.0);
+        for (i, (l, t)) in self.lengths.iter().zip(theta).enumerate() {
+            let (s, c) = t.sin_cos();
+            x += l * s;
+            y -= l * c;
+            out[2 * i] = x;
+            out[2 * i + 1] = y;
+        }
+    }
+
+    /// Centres of mass: row `i` of `out` (length 2N) is link `i`'s centre of mass.
+    pub fn com_positions_into(&self, theta: &[f64], out: &mut [f64]) {
+        let (mut x, mut y) = (0.0, 0.0);
+        for (i, ((l, c), t)) in self.lengths.iter().zip(&self.com).zip(theta).enumerate() {
+            let (st, ct) = t.sin_cos();
+            out[2 * i] = x + c * st;
+            out[2 * i + 1] = y - c * ct;
+            x += l * st;
+            y -= l * ct;
+        }
+    }
+
+    /// The dense mass matrix, row-major N x N (for inspection and the reference routes).
+    pub fn mass_matrix_into(&self, theta: &[f64], out: &mut [f64]) {
+        let n = self.n();
+        for a in 0..n {
+            for b in 0..n {
+                out[a * n + b] = self.coupling(a, b) * (theta[a] - theta[b]).cos();
+            }
+        }
+    }
+
+    /// `K_ab`: the mass matrix without its `cos(theta_a - theta_b)` factor.
+    pub(crate) fn coupling(&self, a: usize, b: usize) -> f64 {
+        match a.cmp(&b) {
+            std::cmp::Ordering::Equal => self.diag[a],
+            std::cmp::Ordering::Less => self.lengths[a] * self.h[b],
+            std::cmp::Ordering::Greater => self.lengths[b] * self.h[a],
+        }
+    }
+}

@@ -1,0 +1,22 @@
+//! multipendulum-core: planar N-link pendulum dynamics in O(N), integrators, ensembles.
+//!
+//! Layers: [`model::Chain`] holds validated constant parameters; [`dynamics`] evaluates the
+//! Lagrangian and Hamiltonian forms with preallocated [`dynamics::Workspace`] buffers;
+//! [`integrators`] advance a state; [`simulate`] drives a run and collects its output.
+pub mod dynamics;
+pub mod error;
+pub mod model;
+pub mod reference;
+
+pub use dynamics::{Singular, Workspace};
+pub use error::{Error, Result};
+pub use model::Chain;
+pub mod integrators;
+pub mod simulate;
+pub mod system;
+pub mod torque;
+
+pub use integrators::Method;
+pub use simulate::{simulate, simulate_batch, Settings, Stats, Trajectory};
+pub use system::{ChainSystem, Form, OdeSystem};
+pub use torque::{Builtin, Interp, Joint, TorqueSource};

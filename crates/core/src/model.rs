@@ -1,0 +1,180 @@
+//! The validated, immutable chain: constant parameters only (work buffers live in `Workspace`).
+use crate::error::{check_finite, check_len, Error, Result};
+
+/// A planar chain of `n` rigid links hanging from a fixed pivot at the origin.
+///
+/// Link `i` has length `l_i` (pivot to the next joint), mass `m_i`, centre of mass at `c_i` from
+/// its own pivot along the link, and moment of inertia `I_i` about its centre of mass. Angles are
+/// absolute, from the downward vertical, counter-clockwise positive; gravity `g` along -y. SI units.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Chain {
+    pub(crate) lengths: Vec<f64>,
+    pub(crate) masses: Vec<f64>,
+    pub(crate) com: Vec<f64>,
+    pub(crate) inertia: Vec<f64>,
+    pub(crate) g: f64,
+    /// `h_i = m_i c_i + l_i * sum_{k>i} m_k`: couples link i to the links above it; also
+    /// the gravity moment `U = -g sum h_i cos(theta_i)`.
+    pub(crate) h: Vec<f64>,
+    /// `A_ii = I_i + m_i c_i^2 + l_i^2 sum_{k>i} m_k`.
+    pub(crate) diag: Vec<f64>,
+}
+
+impl Chain {
+    /// Build and validate a chain. `com` defaults to `lengths` (point masses at the link ends,
+    /// seed 000) and `inertia` to zeros.
+    pub fn new(
+        lengths: &[f64],
+        masses: &[f64],
+        com: Option<&[f64]>,
+        inertia: Option<&[f64]>,
+        g: f64,
+    ) -> Result<Self> {
+        let n = lengths.len();
+        if n == 0 {
+            return Err(Error::input("lengths must have at least one entry, got 0"));
+        }
+        check_len("masses", masses, n)?;
+        let com = com.map_or_else(|| lengths.to_vec(), <[f64]>::to_vec);
+        let inertia = inertia.map_or_else(|| vec![0.0; n], <[f64]>::to_vec);
+        check_len("com", &com, n)?;
+        check_len("inertia", &inertia, n)?;
+        for (i, &l) in lengths.iter().enumerate() {
+            if !(l.is_finite() && l > 0.0) {
+                return Err(Error::input(format!("lengths[{i}] must be > 0 and finite, got {l}")));
+            }
+        }
+        for (name, values) in [("masses", masses), ("inertia", &inertia[..])] {
+            for (i, &v) in values.iter().enumerate() {
+                if !(v.is_finite() && v >= 0.0) {
+                    return Err(Error::input(format!("{name}[{i}] must be >= 0 and finite, got {v}")));
+                }
+            }
+        }
+        check_finite("com", &com)?;
+        if !g.is_finite() {
+            return Err(Error::input(format!("g must be finite, got {g}")));
+        }
+        let total: f64 = masses.iter().sum();
+        if !total.is_finite() {
+            return Err(Error::input("the sum of masses overflows"));
+        }
+
+        let mut h = vec![0.0; n];
+        let mut diag = vec![0.0; n];
+        let mut below = 0.0; // sum of the masses of the links below link i
+        for i in (0..n).rev() {
+            h[i] = masses[i] * com[i] + lengths[i] * below;
+            diag[i] = inertia[i] + masses[i] * com[i] * com[i] + lengths[i] * lengths[i] * below;
+            below += masses[i];
+        }
+        check_finite("mass matrix diagonal", &diag)?;
+        let chain = Chain { lengths: lengths.to_vec(), masses: masses.to_vec(), com, inertia, g, h, diag };
+        chain.check_nonsingular()?;
+        Ok(chain)
+    }
+
+    /// Uniform rods (seed 001): centre of mass mid-link, `I = m l^2 / 12`.
+    pub fn rods(lengths: &[f64], masses: &[f64], g: f64) -> Result<Self> {
+        check_len("masses", masses, lengths.len())?;
+        let com: Vec<f64> = lengths.iter().map(|l| 0.5 * l).collect();
+        let inertia: Vec<f64> = lengths.iter().zip(masses).map(|(l, m)| m * l * l / 12.0).collect();
+        Self::new(lengths, masses, Some(&com), Some(&inertia), g)
+    }
+
+    /// Refuse a chain whose mass matrix is singular in some configuration.
+    ///
+    /// Kinetic energy zero with the pivot still forces every angular velocity to zero unless some
+    /// link is "unpinned" (no inertia and no mass off its pivot) while the links below it can
+    /// still let its far end move at zero kinetic energy ("free"), e.g. a massless last link, or a
+    /// massless link carrying a point mass (singular when the two are aligned). Walking up the
+    /// chain: the empty tail is free; a link with mass at its pivot or with both mass and inertia
+    /// holds its pivot still; a point mass exactly at the far end always lets the pivot swing.
+    fn check_nonsingular(&self) -> Result<()> {
+        let mut free = true; // can joint i+1 move with zero kinetic energy below it?
+        for i in (0..self.n()).rev() {
+            let (m, c, inertia) = (self.masses[i], self.com[i], self.inertia[i]);
+            let pinned = inertia > 0.0 || (m > 0.0 && c != 0.0);
+            if !pinned && free {
+                return Err(Error::input(format!(
+                    "link {i} leaves the mass matrix singular: masses[{i}] = {m}, com[{i}] = {c}, \
+                     inertia[{i}] = {inertia}, and the links below it cannot hold its end \
+                     (give it mass away from its pivot or inertia)"
+                )));
+            }
+            free = if inertia > 0.0 {
+                m == 0.0 && free
+            } else if m > 0.0 && c != 0.0 {
+                c == self.lengths[i] || free
+            } else {
+                m == 0.0
+            };
+        }
+        Ok(())
+    }
+
+    pub fn n(&self) -> usize {
+        self.lengths.len()
+    }
+    pub fn lengths(&self) -> &[f64] {
+        &self.lengths
+    }
+    pub fn masses(&self) -> &[f64] {
+        &self.masses
+    }
+    pub fn com(&self) -> &[f64] {
+        &self.com
+    }
+    pub fn inertia(&self) -> &[f64] {
+        &self.inertia
+    }
+    pub fn g(&self) -> f64 {
+        self.g
+    }
+
+    /// Refuse a state of the wrong size or with NaN/inf, naming it.
+    pub fn check_state(&self, name: &str, values: &[f64]) -> Result<()> {
+        check_len(name, values, self.n())?;
+        check_finite(name, values)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn refuses_bad_lengths_with_field_and_index() {
+        let e = Chain::new(&[1.0, 1.0, 0.0], &[1.0; 3], None, None, 9.81).unwrap_err();
+        assert_eq!(e, Error::input("lengths[2] must be > 0 and finite, got 0"));
+        let e = Chain::new(&[1.0, f64::NAN], &[1.0; 2], None, None, 9.81).unwrap_err();
+        assert!(e.to_string().starts_with("lengths[1] must be > 0"), "{e}");
+    }
+
+    #[test]
+    fn refuses_negative_mass_and_inertia() {
+        let e = Chain::new(&[1.0, 1.0], &[1.0, -1.0], None, None, 9.81).unwrap_err();
+        assert!(e.to_string().starts_with("masses[1] must be >= 0"), "{e}");
+        let e = Chain::new(&[1.0], &[1.0], None, Some(&[-0.1]), 9.81).unwrap_err();
+        assert!(e.to_string().starts_with("inertia[0] must be >= 0"), "{e}");
+    }
+
+    #[test]
+    fn singular_chains_are_refused_and_regular_ones_accepted() {
+        // A massless last point mass: the last link swings freely.
+        assert!(Chain::new(&[1.0, 1.0], &[1.0, 0.0], None, None, 9.81).is_err());
+        // A massless link carrying a point mass: singular when aligned.
+        assert!(Chain::new(&[1.0, 1.0], &[0.0, 1.0], None, None, 9.81).is_err());
+        // A massless link carrying a rod with inertia: regular everywhere.
+        assert!(Chain::new(&[1.0, 1.0], &[0.0, 1.0], Some(&[1.0, 0.5]), Some(&[0.0, 0.1]), 9.81).is_ok());
+        // Mass at the pivot only, then a point mass: the first link is unpinned but held.
+        assert!(Chain::new(&[1.0, 1.0], &[1.0, 1.0], Some(&[0.0, 1.0]), None, 9.81).is_err());
+        assert!(Chain::rods(&[1.0, 0.7], &[1.0, 2.0], 9.81).is_ok());
+    }
+
+    #[test]
+    fn mismatched_sizes_are_refused() {
+        let e = Chain::new(&[1.0, 1.0], &[1.0], None, None, 9.81).unwrap_err();
+        assert_eq!(e, Error::input("masses must have 2 entries (one per link), got 1"));
+    }
+}

@@ -1,0 +1,103 @@
+//! The chain as a first-order ODE `y' = f(t, y)` in either of the seeds' forms. The state is
+//! `[theta, omega]` (Lagrangian, seed 000) or `[theta, p]` (Hamiltonian, seed 001), followed by
+//! the work `W` done by the torque when one acts (so `E(t) - E(0) = W(t)` can be checked).
+use crate::dynamics::Workspace;
+use crate::error::{Error, Result};
+use crate::model::Chain;
+use crate::torque::TorqueSource;
+
+/// An ODE right-hand side; the integrators are generic over it so the hot loop is monomorphised.
+pub trait OdeSystem {
+    fn dim(&self) -> usize;
+    fn rhs(&mut self, t: f64, y: &[f64], dy: &mut [f64]) -> Result<()>;
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Form {
+    /// `(theta, omega)`, `theta_ddot = A^-1 (tau - ...)`.
+    Lagrangian,
+    /// `(theta, p)`, Hamilton's canonical equations; needed by the symplectic integrators.
+    Hamiltonian,
+}
+
+impl Form {
+    pub fn name(self) -> &'static str {
+        match self {
+            Form::Lagrangian => "lagrangian",
+            Form::Hamiltonian => "hamiltonian",
+        }
+    }
+}
+
+pub struct ChainSystem<'c, T> {
+    chain: &'c Chain,
+    torque: T,
+    form: Form,
+    ws: Workspace,
+    tau: Vec<f64>,
+    /// Right-hand side evaluations so far.
+    pub evaluations: u64,
+}
+
+impl<'c, T: TorqueSource> ChainSystem<'c, T> {
+    pub fn new(chain: &'c Chain, torque: T, form: Form) -> Self {
+        let n = chain.n();
+        ChainSystem { chain, torque, form, ws: Workspace::new(n), tau: vec![0.0; n], evaluations: 0 }
+    }
+
+    pub fn form(&self) -> Form {
+        self.form
+    }
+
+    pub fn chain(&self) -> &Chain {
+        self.chain
+    }
+
+    /// Whether the state carries the work integral after the 2N mechanical entries.
+    pub fn tracks_work(&self) -> bool {
+        self.torque.active()
+    }
+}
+
+impl<T: TorqueSource> OdeSystem for ChainSystem<'_, T> {
+    fn dim(&self) -> usize {
+        2 * self.chain.n() + usize::from(self.torque.active())
+    }
+
+    #[inline]
+    fn rhs(&mut self, t: f64, y: &[f64], dy: &mut [f64]) -> Result<()> {
+        self.evaluations += 1;
+        let n = self.chain.n();
+        let active = self.torque.active();
+        let (theta, second) = (&y[..n], &y[n..2 * n]);
+        let (d_theta, rest) = dy.split_at_mut(n);
+        let d_second = &mut rest[..n];
+        let Self { chain, torque, ws, tau, .. } = self;
+        match self.form {
+            Form::Lagrangian => {
+                if active {
+                    torque.eval(t, theta, second, tau)?;
+                }
+                d_theta.copy_from_slice(second);
+                chain
+                    .accelerations_into(theta, second, tau, d_second, ws)
+                    .map_err(|s| Error::integration(t, s.reason()))?;
+            }
+            Form::Hamiltonian => {
+                chain
+                    .hamilton_into(theta, second, d_theta, d_second, ws, |omega, out| {
+                        if active {
+                            torque.eval(t, theta, omega, tau)?;
+                        }
+                        out.copy_from_slice(tau);
+                        Ok(())
+                    })
+                    .map_err(|s| Error::integration(t, s.reason()))??;
+            }
+        }
+        if active {
+            dy[2 * n] = self.tau.iter().zip(&dy[..n]).map(|(a, b)| a * b).sum();
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,199 @@
+//! Driving torques. A [`TorqueSource`] writes generalized torques `tau_i(t)` conjugate to the
+//! absolute angles (seed 000's convention). [`Joint`] wraps a source of joint-motor torques `u_i`
+//! (acting between link i-1 and link i, the robotics convention) and maps them to
+//! `tau_i = u_i - u_{i+1}`.
+use crate::error::{check_finite, Error, Result};
+
+pub trait TorqueSource {
+    /// `false` for the undriven chain: the integrators then skip the call and the work integral.
+    fn active(&self) -> bool {
+        true
+    }
+    /// Write the torques at time `t` in state `(theta, omega)` into `out`.
+    fn eval(&mut self, t: f64, theta: &[f64], omega: &[f64], out: &mut [f64]) -> Result<()>;
+}
+
+/// Interpolation between table samples.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Interp {
+    Linear,
+    /// Natural cubic spline (zero second derivative at both ends).
+    Cubic,
+}
+
+/// The torques that are evaluated in Rust with no call back into Python.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Builtin {
+    None,
+    Constant(Vec<f64>),
+    /// `offset_i + amplitude_i sin(frequency_i t + phase_i)`, frequency in rad/s.
+    Sinusoid { amplitude: Vec<f64>, frequency: Vec<f64>, phase: Vec<f64>, offset: Vec<f64> },
+    /// Samples `values` (row-major, `times.len()` x N), held at the end values outside the range.
+    Table { times: Vec<f64>, values: Vec<f64>, interp: Interp, second: Vec<f64> },
+}
+
+impl Builtin {
+    pub fn constant(n: usize, values: Vec<f64>) -> Result<Self> {
+        check_arr("torque", &values, n)?;
+        Ok(Builtin::Constant(values))
+    }
+
+    pub fn sinusoid(n: usize, amplitude: Vec<f64>, frequency: Vec<f64>, phase: Vec<f64>, offset: Vec<f64>) -> Result<Self> {
+        check_arr("amplitude", &amplitude, n)?;
+        check_arr("frequency", &frequency, n)?;
+        check_arr("phase", &phase, n)?;
+        check_arr("offset", &offset, n)?;
+        Ok(Builtin::Sinusoid { amplitude, frequency, phase, offset })
+    }
+
+    pub fn table(n: usize, times: Vec<f64>, values: Vec<f64>, interp: Interp) -> Result<Self> {
+        let k = times.len();
+        if k < 2 {
+            return Err(Error::input(format!("a torque table needs at least 2 samples, got {k}")));
+        }
+        check_finite("t", &times)?;
+        if let Some(i) = (1..k).find(|&i| !(times[i] > times[i - 1])) {
+            return Err(Error::input(format!(
+                "t[{i}] must be > t[{}] (strictly increasing), got {} after {}",
+                i - 1,
+                times[i],
+                times[i - 1]
+            )));
+        }
+        if values.len() != k * n {
+            return Err(Error::input(format!(
+                "values must have shape ({k}, {n}) (one row per sample, one column per link), got {} numbers",
+                values.len()
+            )));
+        }
+        check_finite("values", &values)?;
+        let second = if interp == Interp::Cubic { natural_spline(&times, &values, n) } else { Vec::new() };
+        Ok(Builtin::Table { times, values, interp, second })
+    }
+}
+
+fn check_arr(name: &str, v: &[f64], n: usize) -> Result<()> {
+    crate::error::check_len(name, v, n)?;
+    check_finite(name, v)
+}
+
+/// Second derivatives of the natural cubic spline through each column (Thomas algorithm).
+fn natural_spline(t: &[f64], y: &[f64], n: usize) -> Vec<f64> {
+    let k = t.len();
+    let mut m = vec![0.0; k * n];
+    let (mut c, mut d) = (vec![0.0; k], vec![0.0; k]);
+    for col in 0..n {
+        for i in 1..k - 1 {
+            let (h0, h1) = (t[i] - t[i - 1], t[i + 1] - t[i]);
+            let rhs = 6.0 * ((y[(i + 1) * n + col] - y[i * n + col]) / h1 - (y[i * n + col] - y[(i - 1) * n + col]) / h0);
+            let diag = 2.0 * (h0 + h1) - h0 * c[i - 1];
+            c[i] = h1 / diag;
+            d[i] = (rhs - h0 * d[i - 1]) / diag;
+        }
+        for i in (1..k - 1).rev() {
+            m[i * n + col] = d[i] - c[i] * m[(i + 1) * n + col];
+        }
+    }
+    m
+}
+
+impl TorqueSource for Builtin {
+    fn active(&self) -> bool {
+        !matches!(self, Builtin::None)
+    }
+
+    fn eval(&mut self, t: f64, _theta: &[f64], _omega: &[f64], out: &mut [f64]) -> Result<()> {
+        match self {
+            Builtin::None => out.fill(0.0),
+            Builtin::Constant(v) => out.copy_from_slice(v),
+            Builtin::Sinusoid { amplitude, frequency, phase, offset } => {
+                for (i, o) in out.iter_mut().enumerate() {
+                    *o = offset[i] + amplitude[i] * (frequency[i] * t + phase[i]).sin();
+                }
+            }
+            Builtin::Table { times, values, interp, second } => {
+                let n = out.len();
+                let k = times.len();
+                if t <= times[0] || t >= times[k - 1] {
+                    let row = if t <= times[0] { 0 } else { k - 1 };
+                    out.copy_from_slice(&values[row * n..(row + 1) * n]);
+                    return Ok(());
+                }
+                let j = times.partition_point(|&s| s <= t) - 1; // times[j] <= t < times[j+1]
+                let h = times[j + 1] - times[j];
+                let (a, b) = ((times[j + 1] - t) / h, (t - times[j]) / h);
+                for (i, o) in out.iter_mut().enumerate() {
+                    let (y0, y1) = (values[j * n + i], values[(j + 1) * n + i]);
+                    *o = a * y0 + b * y1;
+                    if *interp == Interp::Cubic {
+                        let (m0, m1) = (second[j * n + i], second[(j + 1) * n + i]);
+                        *o += ((a * a * a - a) * m0 + (b * b * b - b) * m1) * h * h / 6.0;
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Joint-motor torques `u` mapped to generalized torques `tau_i = u_i - u_{i+1}`: the motor at
+/// joint i turns link i forwards and pushes back on link i-1.
+#[derive(Debug, Clone)]
+pub struct Joint<T>(pub T);
+
+impl<T: TorqueSource> TorqueSource for Joint<T> {
+    fn active(&self) -> bool {
+        self.0.active()
+    }
+    fn eval(&mut self, t: f64, theta: &[f64], omega: &[f64], out: &mut [f64]) -> Result<()> {
+        self.0.eval(t, theta, omega, out)?;
+        for i in 0..out.len().saturating_sub(1) {
+            out[i] -= out[i + 1];
+        }
+        Ok(())
+    }
+}
+
+impl<T: TorqueSource + ?Sized> TorqueSource for &mut T {
+    fn active(&self) -> bool {
+        (**self).active()
+    }
+    fn eval(&mut self, t: f64, theta: &[f64], omega: &[f64], out: &mut [f64]) -> Result<()> {
+        (**self).eval(t, theta, omega, out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn joint_torques_map_to_differences() {
+        let mut j = Joint(Builtin::Constant(vec![3.0, 2.0, 0.5]));
+        let mut out = [0.0; 3];
+        j.eval(0.0, &[0.0; 3], &[0.0; 3], &mut out).unwrap();
+        assert_eq!(out, [1.0, 1.5, 0.5]);
+    }
+
+    #[test]
+    fn cubic_table_reproduces_a_cubic_between_interior_knots_and_linear_is_exact_on_lines() {
+        let times: Vec<f64> = (0..40).map(|i| i as f64 * 0.25).collect();
+        let line: Vec<f64> = times.iter().map(|t| 2.0 * t - 1.0).collect();
+        let mut lin = Builtin::table(1, times.clone(), line, Interp::Linear).unwrap();
+        let mut out = [0.0];
+        lin.eval(3.3, &[], &[], &mut out).unwrap();
+        assert!((out[0] - 5.6).abs() < 1e-14);
+        let sine: Vec<f64> = times.iter().map(|t| t.sin()).collect();
+        let mut cub = Builtin::table(1, times, sine, Interp::Cubic).unwrap();
+        cub.eval(4.1, &[], &[], &mut out).unwrap();
+        assert!((out[0] - 4.1f64.sin()).abs() < 1e-4, "{}", out[0] - 4.1f64.sin());
+        cub.eval(100.0, &[], &[], &mut out).unwrap();
+        assert_eq!(out[0], 9.75f64.sin());
+    }
+
+    #[test]
+    fn tables_must_increase() {
+        let e = Builtin::table(1, vec![0.0, 1.0, 1.0], vec![0.0; 3], Interp::Linear).unwrap_err();
+        assert_eq!(e.to_string(), "t[2] must be > t[1] (strictly increasing), got 1 after 1");
+    }
+}

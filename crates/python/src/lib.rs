@@ -1,0 +1,556 @@
+//! Python bindings: convert arrays, call the core, map its errors. No physics here.
+//!
+//! Arrays cross as flat, C-contiguous float64 (the Python layer reshapes); results are moved
+//! into NumPy without copying. The GIL is released while Rust integrates, except when a Python
+//! torque function must be called back.
+use std::cell::RefCell;
+use std::time::{Duration, Instant};
+
+use multipendulum_core as core;
+use numpy::{PyArray1, PyReadonlyArray1};
+use pyo3::create_exception;
+use pyo3::exceptions::{PyRuntimeError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::PyTuple;
+
+use core::{reference, Builtin, Chain as CoreChain, Error, Form, Interp, Joint, Method, Settings, TorqueSource, Workspace};
+
+create_exception!(multipendulum, InputError, PyValueError, "Bad input: the message names the field, the index, the value and what was expected.");
+create_exception!(multipendulum, IntegrationError, PyRuntimeError, "An integration could not continue; `.t` is the time it failed.");
+
+/// The one place where core errors become Python exceptions.
+fn to_py(py: Python<'_>, e: Error) -> PyErr {
+    match e {
+        Error::Input(m) => InputError::new_err(m),
+        Error::Integration { t, .. } | Error::Torque { t } => {
+            let err = IntegrationError::new_err(e.to_string());
+            let _ = err.value(py).setattr("t", t);
+            err
+        }
+    }
+}
+
+fn slice<'a>(name: &str, a: &'a PyReadonlyArray1<'_, f64>) -> PyResult<&'a [f64]> {
+    a.as_slice().map_err(|_| InputError::new_err(format!("{name} must be a C-contiguous float64 array")))
+}
+
+fn vec_out(py: Python<'_>, v: Vec<f64>) -> Bound<'_, PyArray1<f64>> {
+    PyArray1::from_vec(py, v)
+}
+
+/// A Python torque function `f(t)` or `f(t, theta, omega)`; its exception is kept to re-raise.
+struct Callback<'py> {
+    f: Bound<'py, PyAny>,
+    with_state: bool,
+    error: &'py RefCell<Option<PyErr>>,
+}
+
+impl TorqueSource for Callback<'_> {
+    fn eval(&mut self, t: f64, theta: &[f64], omega: &[f64], out: &mut [f64]) -> core::Result<()> {
+        let py = self.f.py();
+        let result = if self.with_state {
+            self.f.call1((t, vec_out(py, theta.to_vec()), vec_out(py, omega.to_vec())))
+        } else {
+            self.f.call1((t,))
+        };
+        let fail = |err: PyErr| {
+            *self.error.borrow_mut() = Some(err);
+            Error::Torque { t }
+        };
+        let value = result.map_err(fail)?;
+        let arr: Vec<f64> = match value.extract::<Vec<f64>>() {
+            Ok(v) => v,
+            Err(_) => match value.extract::<f64>() {
+                Ok(x) if out.len() == 1 => vec![x],
+                _ => {
+                    return Err(fail(InputError::new_err(format!(
+                        "the torque function must return {} numbers (one per link), got {}",
+                        out.len(),
+                        value.repr().map(|r| r.to_string()).unwrap_or_default()
+                    ))))
+                }
+            },
+        };
+        if arr.len() != out.len() {
+            return Err(fail(InputError::new_err(format!(
+                "the torque function must return {} numbers (one per link), got {} at t = {t}",
+                out.len(),
+                arr.len()
+            ))));
+        }
+        if let Some(i) = arr.iter().position(|v| !v.is_finite()) {
+            return Err(fail(InputError::new_err(format!("the torque function returned torque[{i}] = {} at t = {t}", arr[i]))));
+        }
+        out.copy_from_slice(&arr);
+        Ok(())
+    }
+}
+
+/// Build a built-in torque from the Python layer's normalised spec:
+/// `("constant", values)`, `("sinusoid", amplitude, frequency, phase, offset)`,
+/// `("table", times, values, "linear"|"cubic")`.
+fn builtin(n: usize, spec: &Bound<'_, PyTuple>) -> PyResult<Builtin> {
+    let kind: String = spec.get_item(0)?.extract()?;
+    let arr = |i: usize| -> PyResult<Vec<f64>> { spec.get_item(i)?.extract() };
+    let py = spec.py();
+    match kind.as_str() {
+        "constant" => Builtin::constant(n, arr(1)?),
+        "sinusoid" => Builtin::sinusoid(n, arr(1)?, arr(2)?, arr(3)?, arr(4)?),
+        "table" => {
+            let interp = match spec.get_item(3)?.extract::<String>()?.as_str() {
+                "linear" => Interp::Linear,
+                "cubic" => Interp::Cubic,
+                other => return Err(InputError::new_err(format!("kind must be \"linear\" or \"cubic\", got {other:?}"))),
+            };
+            Builtin::table(n, arr(1)?, arr(2)?, interp)
+        }
+        other => return Err(InputError::new_err(format!("unknown torque kind {other:?}"))),
+    }
+    .map_err(|e| to_py(py, e))
+}
+
+/// Any torque the Python layer can pass, in either convention.
+enum AnyTorque<'py> {
+    Builtin(Builtin),
+    JointBuiltin(Joint<Builtin>),
+    Call(Callback<'py>),
+    JointCall(Joint<Callback<'py>>),
+}
+
+impl TorqueSource for AnyTorque<'_> {
+    fn active(&self) -> bool {
+        match self {
+            AnyTorque::Builtin(b) => b.active(),
+            AnyTorque::JointBuiltin(b) => b.active(),
+            _ => true,
+        }
+    }
+    fn eval(&mut self, t: f64, theta: &[f64], omega: &[f64], out: &mut [f64]) -> core::Result<()> {
+        match self {
+            AnyTorque::Builtin(b) => b.eval(t, theta, omega, out),
+            AnyTorque::JointBuiltin(b) => b.eval(t, theta, omega, out),
+            AnyTorque::Call(c) => c.eval(t, theta, omega, out),
+            AnyTorque::JointCall(c) => c.eval(t, theta, omega, out),
+        }
+    }
+}
+
+/// `spec`: None, a built-in tuple, or `("callable", f, with_state)`; `joint` selects the
+/// joint-motor convention.
+fn torque<'py>(
+    n: usize,
+    spec: Option<&Bound<'py, PyTuple>>,
+    joint: bool,
+    error: &'py RefCell<Option<PyErr>>,
+) -> PyResult<AnyTorque<'py>> {
+    let Some(spec) = spec else { return Ok(AnyTorque::Builtin(Builtin::None)) };
+    if spec.get_item(0)?.extract::<String>()? == "callable" {
+        let cb = Callback { f: spec.get_item(1)?, with_state: spec.get_item(2)?.extract()?, error };
+        return Ok(if joint { AnyTorque::JointCall(Joint(cb)) } else { AnyTorque::Call(cb) });
+    }
+    let b = builtin(n, spec)?;
+    Ok(if joint { AnyTorque::JointBuiltin(Joint(b)) } else { AnyTorque::Builtin(b) })
+}
+
+/// Re-raise a torque function's own exception where the core reported it.
+fn torque_error(py: Python<'_>, e: Error, slot: &RefCell<Option<PyErr>>) -> PyErr {
+    match (&e, slot.borrow_mut().take()) {
+        (Error::Torque { .. }, Some(err)) => err,
+        _ => to_py(py, e),
+    }
+}
+
+#[pyclass(module = "multipendulum._core", frozen, name = "Chain")]
+struct PyChain {
+    inner: CoreChain,
+}
+
+fn rows(name: &str, len: usize, n: usize) -> PyResult<usize> {
+    if len % n != 0 || len == 0 {
+        return Err(InputError::new_err(format!("{name} must have shape (..., {n}), got {len} numbers")));
+    }
+    Ok(len / n)
+}
+
+#[pymethods]
+impl PyChain {
+    #[new]
+    #[pyo3(signature = (lengths, masses, com=None, inertia=None, g=9.81))]
+    fn new(
+        py: Python<'_>,
+        lengths: Vec<f64>,
+        masses: Vec<f64>,
+        com: Option<Vec<f64>>,
+        inertia: Option<Vec<f64>>,
+        g: f64,
+    ) -> PyResult<Self> {
+        CoreChain::new(&lengths, &masses, com.as_deref(), inertia.as_deref(), g)
+            .map(|inner| PyChain { inner })
+            .map_err(|e| to_py(py, e))
+    }
+
+    #[staticmethod]
+    #[pyo3(signature = (lengths, masses, g=9.81))]
+    fn rods(py: Python<'_>, lengths: Vec<f64>, masses: Vec<f64>, g: f64) -> PyResult<Self> {
+        CoreChain::rods(&lengths, &masses, g).map(|inner| PyChain { inner }).map_err(|e| to_py(py, e))
+    }
+
+    #[getter]
+    fn n(&self) -> usize {
+        self.inner.n()
+    }
+    #[getter]
+    fn lengths<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        vec_out(py, self.inner.lengths().to_vec())
+    }
+    #[getter]
+    fn masses<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        vec_out(py, self.inner.masses().to_vec())
+    }
+    #[getter]
+    fn com<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        vec_out(py, self.inner.com().to_vec())
+    }
+    #[getter]
+    fn inertia<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        vec_out(py, self.inner.inertia().to_vec())
+    }
+    #[getter]
+    fn g(&self) -> f64 {
+        self.inner.g()
+    }
+
+    /// Rows of flat `theta` -> rows of row-major N x N mass matrices.
+    fn mass_matrix<'py>(&self, py: Python<'py>, theta: PyReadonlyArray1<'py, f64>) -> PyResult<Bound<'py, PyArray1<f64>>> {
+        let (c, theta) = (&self.inner, slice("theta", &theta)?);
+        let n = c.n();
+        let b = rows("theta", theta.len(), n)?;
+        let mut out = vec![0.0; b * n * n];
+        for (row, o) in theta.chunks(n).zip(out.chunks_mut(n * n)) {
+            c.mass_matrix_into(row, o);
+        }
+        Ok(vec_out(py, out))
+    }
+
+    /// Accelerations of each row; `algorithm` is "recursive" (O(N)), "cholesky" or "cramer".
+    #[pyo3(signature = (theta, omega, t, torque_spec, joint, algorithm))]
+    fn accelerations<'py>(
+        &self,
+        py: Python<'py>,
+        theta: PyReadonlyArray1<'py, f64>,
+        omega: PyReadonlyArray1<'py, f64>,
+        t: f64,
+        torque_spec: Option<Bound<'py, PyTuple>>,
+        joint: bool,
+        algorithm: &str,
+    ) -> PyResult<Bound<'py, PyArray1<f64>>> {
+        let c = &self.inner;
+        let n = c.n();
+        let (theta, omega) = (slice("theta", &theta)?, slice("omega", &omega)?);
+        core::error::check_finite("theta", theta).map_err(|e| to_py(py, e))?;
+        core::error::check_finite("omega", omega).map_err(|e| to_py(py, e))?;
+        let b = rows("theta", theta.len(), n)?;
+        let slot = RefCell::new(None);
+        let mut src = torque(n, torque_spec.as_ref(), joint, &slot)?;
+        let mut ws = Workspace::new(n);
+        let (mut tau, mut out) = (vec![0.0; n], vec![0.0; b * n]);
+        for i in 0..b {
+            let (th, om) = (&theta[i * n..(i + 1) * n], &omega[i * n..(i + 1) * n]);
+            if src.active() {
+                src.eval(t, th, om, &mut tau).map_err(|e| torque_error(py, e, &slot))?;
+            }
+            let o = &mut out[i * n..(i + 1) * n];
+            let singular = |s: core::Singular| to_py(py, Error::integration(t, s.reason()));
+            match algorithm {
+                "recursive" => c.accelerations_into(th, om, &tau, o, &mut ws).map_err(singular)?,
+                "cholesky" => o.copy_from_slice(&reference::accelerations_cholesky(c, th, om, &tau).map_err(singular)?),
+                "cramer" => o.copy_from_slice(&reference::accelerations_cramer(c, th, om, &tau).map_err(singular)?),
+                other => {
+                    return Err(InputError::new_err(format!(
+                        "algorithm must be one of recursive, cholesky, cramer, got {other:?}"
+                    )))
+                }
+            }
+        }
+        Ok(vec_out(py, out))
+    }
+
+    /// `(theta_dot, p_dot)` of Hamilton's equations for each row.
+    #[pyo3(signature = (theta, p, t, torque_spec, joint))]
+    fn hamilton<'py>(
+        &self,
+        py: Python<'py>,
+        theta: PyReadonlyArray1<'py, f64>,
+        p: PyReadonlyArray1<'py, f64>,
+        t: f64,
+        torque_spec: Option<Bound<'py, PyTuple>>,
+        joint: bool,
+    ) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>)> {
+        let c = &self.inner;
+        let n = c.n();
+        let (theta, p) = (slice("theta", &theta)?, slice("p", &p)?);
+        let b = rows("theta", theta.len(), n)?;
+        let slot = RefCell::new(None);
+        let mut src = torque(n, torque_spec.as_ref(), joint, &slot)?;
+        let mut ws = Workspace::new(n);
+        let (mut td, mut pd) = (vec![0.0; b * n], vec![0.0; b * n]);
+        for i in 0..b {
+            let r = i * n..(i + 1) * n;
+            let th = &theta[r.clone()];
+            let active = src.active();
+            c.hamilton_into(th, &p[r.clone()], &mut td[r.clone()], &mut pd[r], &mut ws, |om, out| {
+                if active {
+                    src.eval(t, th, om, out)
+                } else {
+                    out.fill(0.0);
+                    Ok(())
+                }
+            })
+            .map_err(|s| to_py(py, Error::integration(t, s.reason())))?
+            .map_err(|e| torque_error(py, e, &slot))?;
+        }
+        Ok((vec_out(py, td), vec_out(py, pd)))
+    }
+
+    fn momenta<'py>(&self, py: Python<'py>, theta: PyReadonlyArray1<'py, f64>, omega: PyReadonlyArray1<'py, f64>) -> PyResult<Bound<'py, PyArray1<f64>>> {
+        let c = &self.inner;
+        let n = c.n();
+        let (theta, omega) = (slice("theta", &theta)?, slice("omega", &omega)?);
+        rows("theta", theta.len(), n)?;
+        let mut ws = Workspace::new(n);
+        let mut out = vec![0.0; theta.len()];
+        for ((th, om), o) in theta.chunks(n).zip(omega.chunks(n)).zip(out.chunks_mut(n)) {
+            c.momenta_into(th, om, o, &mut ws);
+        }
+        Ok(vec_out(py, out))
+    }
+
+    fn velocities<'py>(&self, py: Python<'py>, theta: PyReadonlyArray1<'py, f64>, p: PyReadonlyArray1<'py, f64>) -> PyResult<Bound<'py, PyArray1<f64>>> {
+        let c = &self.inner;
+        let n = c.n();
+        let (theta, p) = (slice("theta", &theta)?, slice("p", &p)?);
+        rows("theta", theta.len(), n)?;
+        let mut ws = Workspace::new(n);
+        let mut out = vec![0.0; theta.len()];
+        for ((th, pp), o) in theta.chunks(n).zip(p.chunks(n)).zip(out.chunks_mut(n)) {
+            c.velocities_into(th, pp, o, &mut ws).map_err(|s| to_py(py, Error::integration(0.0, s.reason())))?;
+        }
+        Ok(vec_out(py, out))
+    }
+
+    /// `(kinetic, potential)` energies of each row.
+    fn energies<'py>(&self, py: Python<'py>, theta: PyReadonlyArray1<'py, f64>, omega: PyReadonlyArray1<'py, f64>) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>)> {
+        let c = &self.inner;
+        let n = c.n();
+        let (theta, omega) = (slice("theta", &theta)?, slice("omega", &omega)?);
+        let b = rows("theta", theta.len(), n)?;
+        let mut ws = Workspace::new(n);
+        let mut scratch = vec![0.0; n];
+        let (mut kin, mut pot) = (Vec::with_capacity(b), Vec::with_capacity(b));
+        for (th, om) in theta.chunks(n).zip(omega.chunks(n)) {
+            kin.push(c.kinetic_energy(th, om, &mut scratch, &mut ws));
+            pot.push(c.potential_energy(th));
+        }
+        Ok((vec_out(py, kin), vec_out(py, pot)))
+    }
+
+    /// Joint positions (`com=False`) or centres of mass (`com=True`), 2N numbers per row.
+    fn positions<'py>(&self, py: Python<'py>, theta: PyReadonlyArray1<'py, f64>, com: bool) -> PyResult<Bound<'py, PyArray1<f64>>> {
+        let c = &self.inner;
+        let n = c.n();
+        let theta = slice("theta", &theta)?;
+        rows("theta", theta.len(), n)?;
+        let mut out = vec![0.0; 2 * theta.len()];
+        for (th, o) in theta.chunks(n).zip(out.chunks_mut(2 * n)) {
+            if com {
+                c.com_positions_into(th, o);
+            } else {
+                c.positions_into(th, o);
+            }
+        }
+        Ok(vec_out(py, out))
+    }
+
+    fn __repr__(&self) -> String {
+        let c = &self.inner;
+        format!(
+            "Chain(lengths={:?}, masses={:?}, com={:?}, inertia={:?}, g={})",
+            c.lengths(),
+            c.masses(),
+            c.com(),
+            c.inertia(),
+            c.g()
+        )
+    }
+}
+
+/// Calls `progress(fraction)` and checks for Ctrl-C at most ten times a second.
+struct Progress<'a> {
+    every: Duration,
+    last: Instant,
+    t_end: f64,
+    callback: Option<&'a Py<PyAny>>,
+}
+
+impl Progress<'_> {
+    fn tick(&mut self, py: Option<Python<'_>>, t: f64) -> core::Result<()> {
+        if self.last.elapsed() < self.every {
+            return Ok(());
+        }
+        self.last = Instant::now();
+        let report = |py: Python<'_>| -> PyResult<()> {
+            py.check_signals()?;
+            if let Some(cb) = self.callback {
+                cb.call1(py, (t / self.t_end,))?;
+            }
+            Ok(())
+        };
+        let r = match py {
+            Some(py) => report(py),
+            None => Python::attach(report),
+        };
+        r.map_err(|e| {
+            PENDING.with(|p| *p.borrow_mut() = Some(e));
+            Error::Torque { t }
+        })
+    }
+}
+
+thread_local! {
+    /// A Python exception raised in a progress callback or by a signal handler during a run.
+    static PENDING: RefCell<Option<PyErr>> = const { RefCell::new(None) };
+}
+
+struct Trajectories(Vec<core::Trajectory>);
+
+/// The run's outputs as a dict of flat arrays (Python reshapes): t, theta, omega, p, energy,
+/// work, and the stats.
+fn trajectories_out<'py>(py: Python<'py>, trs: Trajectories) -> PyResult<Bound<'py, pyo3::types::PyDict>> {
+    use pyo3::types::PyDict;
+    let d = PyDict::new(py);
+    let mut trs = trs.0;
+    let first = &trs[0];
+    d.set_item("t", vec_out(py, first.t.clone()))?;
+    d.set_item("form", first.form.name())?;
+    let stats = PyDict::new(py);
+    for (k, f) in [
+        ("steps", (|s: &core::Stats| s.steps as f64) as fn(&core::Stats) -> f64),
+        ("rejected", |s| s.rejected as f64),
+        ("evaluations", |s| s.evaluations as f64),
+        ("iterations", |s| s.iterations as f64),
+        ("energy_error", |s| s.energy_error),
+    ] {
+        stats.set_item(k, vec_out(py, trs.iter().map(|t| f(&t.stats)).collect()))?;
+    }
+    d.set_item("stats", stats)?;
+    let take = |trs: &mut Vec<core::Trajectory>, f: fn(&mut core::Trajectory) -> Vec<f64>| -> Vec<f64> {
+        if trs.len() == 1 {
+            return f(&mut trs[0]);
+        }
+        trs.iter_mut().flat_map(f).collect()
+    };
+    d.set_item("theta", vec_out(py, take(&mut trs, |t| std::mem::take(&mut t.theta))))?;
+    d.set_item("omega", vec_out(py, take(&mut trs, |t| std::mem::take(&mut t.omega))))?;
+    d.set_item("p", vec_out(py, take(&mut trs, |t| std::mem::take(&mut t.p))))?;
+    d.set_item("energy", vec_out(py, take(&mut trs, |t| std::mem::take(&mut t.energy))))?;
+    d.set_item("work", vec_out(py, take(&mut trs, |t| std::mem::take(&mut t.work))))?;
+    Ok(d)
+}
+
+/// Integrate B >= 1 initial states (rows of flat `theta0`, `omega0`). Built-in torques run on
+/// all cores with the GIL released; a Python torque function runs the rows in turn, holding it.
+#[pyfunction]
+#[pyo3(signature = (chain, theta0, omega0, t_end, method, form, dt, rtol, atol, adaptive, t_eval, max_steps, torque_spec, joint, progress))]
+#[allow(clippy::too_many_arguments)]
+fn simulate<'py>(
+    py: Python<'py>,
+    chain: &PyChain,
+    theta0: PyReadonlyArray1<'py, f64>,
+    omega0: PyReadonlyArray1<'py, f64>,
+    t_end: f64,
+    method: &str,
+    form: Option<&str>,
+    dt: Option<f64>,
+    rtol: f64,
+    atol: f64,
+    adaptive: bool,
+    t_eval: Option<PyReadonlyArray1<'py, f64>>,
+    max_steps: u64,
+    torque_spec: Option<Bound<'py, PyTuple>>,
+    joint: bool,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<Bound<'py, pyo3::types::PyDict>> {
+    let c = &chain.inner;
+    let n = c.n();
+    let err = |e| to_py(py, e);
+    let form = match form {
+        None => None,
+        Some("lagrangian") => Some(Form::Lagrangian),
+        Some("hamiltonian") => Some(Form::Hamiltonian),
+        Some(other) => return Err(InputError::new_err(format!("form must be \"lagrangian\" or \"hamiltonian\", got {other:?}"))),
+    };
+    let settings = Settings {
+        method: Method::parse(method).map_err(err)?,
+        form,
+        dt,
+        rtol,
+        atol,
+        adaptive,
+        t_eval: t_eval.as_ref().map(|a| slice("t_eval", a).map(<[f64]>::to_vec)).transpose()?,
+        max_steps,
+    };
+    let (theta0, omega0) = (slice("theta0", &theta0)?, slice("omega0", &omega0)?);
+    let b = rows("theta0", theta0.len(), n)?;
+    let slot = RefCell::new(None);
+    let src = torque(n, torque_spec.as_ref(), joint, &slot)?;
+    let mut prog = Progress { every: Duration::from_millis(100), last: Instant::now(), t_end, callback: progress.as_ref() };
+    let fail = |e: Error| -> PyErr {
+        if let Some(p) = PENDING.with(|p| p.borrow_mut().take()) {
+            return p;
+        }
+        torque_error(py, e, &slot)
+    };
+    let result = match src {
+        AnyTorque::Builtin(_) | AnyTorque::JointBuiltin(_) if b > 1 => {
+            let run = |src: AnyTorque<'_>| match src {
+                AnyTorque::Builtin(s) => py.detach(|| core::simulate_batch(c, theta0, omega0, t_end, &settings, &s)),
+                AnyTorque::JointBuiltin(s) => py.detach(|| core::simulate_batch(c, theta0, omega0, t_end, &settings, &s)),
+                _ => unreachable!(),
+            };
+            run(src).map(Trajectories)
+        }
+        AnyTorque::Builtin(s) => py
+            .detach(|| core::simulate(c, theta0, omega0, t_end, &settings, s, &mut |t| prog.tick(None, t)))
+            .map(|t| Trajectories(vec![t])),
+        AnyTorque::JointBuiltin(s) => py
+            .detach(|| core::simulate(c, theta0, omega0, t_end, &settings, s, &mut |t| prog.tick(None, t)))
+            .map(|t| Trajectories(vec![t])),
+        mut src => {
+            let mut out = Vec::with_capacity(b);
+            let mut res = Ok(());
+            for i in 0..b {
+                let r = i * n..(i + 1) * n;
+                match core::simulate(c, &theta0[r.clone()], &omega0[r], t_end, &settings, &mut src, &mut |t| prog.tick(Some(py), t)) {
+                    Ok(t) => out.push(t),
+                    Err(e) => {
+                        res = Err(e);
+                        break;
+                    }
+                }
+            }
+            res.map(|_| Trajectories(out))
+        }
+    };
+    let trs = result.map_err(fail)?;
+    trajectories_out(py, trs)
+}
+
+#[pymodule]
+fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<PyChain>()?;
+    m.add_function(wrap_pyfunction!(simulate, m)?)?;
+    m.add("InputError", m.py().get_type::<InputError>())?;
+    m.add("IntegrationError", m.py().get_type::<IntegrationError>())?;
+    m.add("METHODS", Method::ALL.iter().map(|m| m.name()).collect::<Vec<_>>())?;
+    Ok(())
+}

@@ -1,0 +1,41 @@
+"""multipendulum: fast, verified simulation of planar N-link pendulums.
+
+The physics lives in a Rust core (``multipendulum._core``); this package converts, presents and
+orchestrates. Public API::
+
+    chain = Chain(lengths, masses, com=None, inertia=None, g=9.81)   # or Chain.rods(...)
+    sol = simulate(chain, theta0, omega0, t_end, method="dop853", ...)
+"""
+from importlib.metadata import PackageNotFoundError, version as _version
+
+from ._chain import Chain
+from ._simulate import METHODS, Solution, Stats, simulate
+from ._torque import Sinusoid, Table
+from .errors import InputError, IntegrationError
+
+try:
+    __version__ = _version("multipendulum")
+except PackageNotFoundError:  # pragma: no cover - running from a source tree without install
+    __version__ = "0.0.0"
+
+__all__ = [
+    "Chain", "simulate", "Solution", "Stats", "METHODS", "Sinusoid", "Table",
+    "InputError", "IntegrationError", "__version__",
+]
+
+
+def __getattr__(name):
+    # Presentation layers import Matplotlib; load them only when asked for.
+    lazy = {
+        "animate": ("animation", "animate"),
+        "plot": ("plotting", "plot"),
+        "save_results": ("results", "save_results"),
+        "load_results": ("results", "load_results"),
+        "load_scenario": ("scenario", "load_scenario"),
+    }
+    if name in lazy:
+        import importlib
+
+        mod, attr = lazy[name]
+        return getattr(importlib.import_module(f".{mod}", __name__), attr)
+    raise AttributeError(f"module 'multipendulum' has no attribute {name!r}")

@@ -1,0 +1,180 @@
+"""The chain model: a thin layer over the Rust core that converts and reshapes arrays."""
+from __future__ import annotations
+
+import numpy as np
+
+from . import _core
+from ._torque import normalise_torque
+from .errors import InputError
+
+ALGORITHMS = ("recursive", "cholesky", "cramer")
+
+
+def as_state(x, name: str, n: int) -> np.ndarray:
+    """float64, C-contiguous, last axis of length n (leading axes are a batch)."""
+    try:
+        a = np.ascontiguousarray(x, dtype=np.float64)
+    except (TypeError, ValueError) as e:
+        raise InputError(f"{name} must be an array of numbers, got {type(x).__name__}: {e}") from None
+    if a.ndim == 0 and n == 1:
+        a = a.reshape(1)
+    if a.ndim == 0 or a.shape[-1] != n:
+        raise InputError(f"{name} must have shape ({n},) or (..., {n}) (one entry per link), got shape {a.shape}")
+    bad = ~np.isfinite(a)
+    if bad.any():
+        idx = tuple(int(i) for i in np.argwhere(bad)[0])
+        where = idx[0] if len(idx) == 1 else idx
+        raise InputError(f"{name}[{where}] must be finite, got {a[idx]}")
+    return a
+
+
+class Chain:
+    """A planar chain of N rigid links hanging from a fixed pivot at the origin.
+
+    Parameters (SI units; arrays of length N, link 1 hangs from the pivot):
+        lengths: pivot-to-next-joint length of each link, > 0.
+        masses: mass of each link, >= 0.
+        com: distance of each link's centre of mass from its own pivot (default: ``lengths``,
+            i.e. point masses at the link ends, seed 000).
+        inertia: moment of inertia of each link about its centre of mass (default: 0).
+        g: gravitational acceleration along -y.
+
+    Angles ``theta`` are absolute, from the downward vertical, counter-clockwise positive.
+    Methods accept a state of shape (N,) or a batch (..., N) and return matching shapes.
+    A chain whose mass matrix would be singular (e.g. a massless last point mass) is refused.
+
+    >>> import multipendulum as mp
+    >>> chain = mp.Chain(lengths=[1, 1], masses=[1, 1])
+    >>> round(chain.energy([0, 0], [0, 0]), 2)   # hanging at rest: U = -g (2 l1 m + l2 m)
+    -29.43
+    """
+
+    __slots__ = ("_c",)
+
+    def __init__(self, lengths, masses, com=None, inertia=None, g=9.81):
+        args = {}
+        for name, v in (("lengths", lengths), ("masses", masses), ("com", com), ("inertia", inertia)):
+            if v is None:
+                args[name] = None
+                continue
+            a = np.asarray(v, dtype=np.float64) if not isinstance(v, np.ndarray) else v.astype(np.float64)
+            if a.ndim != 1:
+                raise InputError(f"{name} must be a 1-D sequence of numbers, got shape {a.shape}")
+            args[name] = a.tolist()
+        self._c = _core.Chain(args["lengths"], args["masses"], args["com"], args["inertia"], float(g))
+
+    @classmethod
+    def rods(cls, lengths, masses, g=9.81) -> "Chain":
+        """Uniform rods (seed 001's arms): centre of mass mid-link, inertia m l^2 / 12."""
+        lengths = np.asarray(lengths, dtype=np.float64)
+        masses = np.asarray(masses, dtype=np.float64)
+        if lengths.shape != masses.shape:
+            raise InputError(f"masses must have {lengths.size} entries (one per link), got {masses.size}")
+        return cls(lengths, masses, com=lengths / 2, inertia=masses * lengths**2 / 12, g=g)
+
+    @classmethod
+    def _wrap(cls, core_chain) -> "Chain":
+        obj = cls.__new__(cls)
+        obj._c = core_chain
+        return obj
+
+    n = property(lambda self: self._c.n, doc="number of links")
+    lengths = property(lambda self: self._c.lengths)
+    masses = property(lambda self: self._c.masses)
+    com = property(lambda self: self._c.com)
+    inertia = property(lambda self: self._c.inertia)
+    g = property(lambda self: self._c.g)
+
+    def __repr__(self):
+        return repr(self._c)
+
+    def __eq__(self, other):
+        return isinstance(other, Chain) and repr(self) == repr(other)
+
+    def __hash__(self):
+        return hash(repr(self))
+
+    def __reduce__(self):
+        return (Chain, (self.lengths, self.masses, self.com, self.inertia, self.g))
+
+    def to_dict(self) -> dict:
+        return {"lengths": self.lengths.tolist(), "masses": self.masses.tolist(), "com": self.com.tolist(),
+                "inertia": self.inertia.tolist(), "g": self.g}
+
+    # -- dynamics (all computed in Rust) --------------------------------------------------------
+    def _states(self, **arrays):
+        out = [as_state(v, k, self.n) for k, v in arrays.items()]
+        shapes = {a.shape for a in out}
+        if len(shapes) > 1:
+            raise InputError("shapes differ: " + ", ".join(f"{k} {a.shape}" for k, a in zip(arrays, out)))
+        return out
+
+    def mass_matrix(self, theta) -> np.ndarray:
+        """The symmetric positive definite mass matrix A(theta), shape (..., N, N)."""
+        (th,) = self._states(theta=theta)
+        return self._c.mass_matrix(th.ravel()).reshape(th.shape + (self.n,))
+
+    def accelerations(self, theta, omega, t=0.0, torque=None, joint_torque=None, algorithm="recursive"):
+        """theta_ddot, shape (..., N), by the O(N) recursion (or a reference route:
+        ``algorithm="cholesky"`` dense solve, ``"cramer"`` seed 000's Cramer's rule).
+
+        ``torque``: generalized torques conjugate to the absolute angles (seed 000);
+        ``joint_torque``: joint-motor torques u_i between link i-1 and i (tau_i = u_i - u_{i+1}).
+        Either is an array (N,), a built-in (:class:`Sinusoid`, :class:`Table`) or a callable
+        ``f(t)`` / ``f(t, theta, omega)``.
+        """
+        th, om = self._states(theta=theta, omega=omega)
+        spec, joint = normalise_torque(torque, joint_torque, self.n)
+        if algorithm not in ALGORITHMS:
+            raise InputError(f"algorithm must be one of {', '.join(ALGORITHMS)}, got {algorithm!r}")
+        out = self._c.accelerations(th.ravel(), om.ravel(), float(t), spec, joint, algorithm)
+        return out.reshape(th.shape)
+
+    def hamilton(self, theta, p, t=0.0, torque=None, joint_torque=None):
+        """Hamilton's equations: ``(theta_dot, p_dot)``, each of shape (..., N)."""
+        th, pp = self._states(theta=theta, p=p)
+        spec, joint = normalise_torque(torque, joint_torque, self.n)
+        td, pd = self._c.hamilton(th.ravel(), pp.ravel(), float(t), spec, joint)
+        return td.reshape(th.shape), pd.reshape(th.shape)
+
+    def momenta(self, theta, omega) -> np.ndarray:
+        """Canonical momenta p = A(theta) omega, shape (..., N)."""
+        th, om = self._states(theta=theta, omega=omega)
+        return self._c.momenta(th.ravel(), om.ravel()).reshape(th.shape)
+
+    def velocities(self, theta, p) -> np.ndarray:
+        """Angular velocities omega = A(theta)^-1 p, shape (..., N)."""
+        th, pp = self._states(theta=theta, p=p)
+        return self._c.velocities(th.ravel(), pp.ravel()).reshape(th.shape)
+
+    def _energies(self, theta, omega):
+        th, om = self._states(theta=theta, omega=omega)
+        kin, pot = self._c.energies(th.ravel(), om.ravel())
+        shape = th.shape[:-1]
+        return kin.reshape(shape), pot.reshape(shape)
+
+    def energy(self, theta, omega):
+        """Total energy T + U (U = 0 at the pivot's height; hanging at rest is negative)."""
+        kin, pot = self._energies(theta, omega)
+        e = kin + pot
+        return float(e) if e.ndim == 0 else e
+
+    def kinetic_energy(self, theta, omega):
+        kin, _ = self._energies(theta, omega)
+        return float(kin) if kin.ndim == 0 else kin
+
+    def potential_energy(self, theta):
+        th = as_state(theta, "theta", self.n)
+        _, pot = self._energies(th, np.zeros_like(th))
+        return float(pot) if pot.ndim == 0 else pot
+
+    def positions(self, theta) -> np.ndarray:
+        """Joint positions, shape (..., N, 2): row i is the far end of link i (the bob of a point
+        mass); the pivot is the origin, y points up."""
+        (th,) = self._states(theta=theta)
+        return self._c.positions(th.ravel(), False).reshape(th.shape + (2,))
+
+    def com_positions(self, theta) -> np.ndarray:
+        """Centre-of-mass positions, shape (..., N, 2)."""
+        (th,) = self._states(theta=theta)
+        return self._c.positions(th.ravel(), True).reshape(th.shape + (2,))

@@ -1,0 +1,88 @@
+"""Driving torques: built-ins evaluated in Rust, or Python callables."""
+from __future__ import annotations
+
+import inspect
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import InputError
+
+
+def _per_link(x, name, n):
+    a = np.broadcast_to(np.asarray(x, dtype=np.float64), (n,)) if np.ndim(x) == 0 else np.asarray(x, dtype=np.float64)
+    if a.shape != (n,):
+        raise InputError(f"{name} must be a number or have {n} entries (one per link), got shape {a.shape}")
+    return a.tolist()
+
+
+@dataclass(frozen=True)
+class Sinusoid:
+    """``offset_i + amplitude_i sin(frequency_i t + phase_i)``; frequency in rad/s. Each field is a
+    number (same for every link) or one value per link. Evaluated in Rust."""
+
+    amplitude: object
+    frequency: object
+    phase: object = 0.0
+    offset: object = 0.0
+
+    def _spec(self, n):
+        return ("sinusoid", *(_per_link(getattr(self, f), f, n) for f in ("amplitude", "frequency", "phase", "offset")))
+
+
+@dataclass(frozen=True)
+class Table:
+    """Tabulated torques: ``values[k, i]`` at time ``t[k]`` (strictly increasing), interpolated
+    ``kind="linear"`` or ``"cubic"`` (natural spline), held at the end values outside the table.
+    Evaluated in Rust."""
+
+    t: object
+    values: object
+    kind: str = "linear"
+
+    def _spec(self, n):
+        t = np.asarray(self.t, dtype=np.float64)
+        v = np.asarray(self.values, dtype=np.float64)
+        if v.ndim == 1 and n == 1:
+            v = v[:, None]
+        if t.ndim != 1 or v.shape != (t.size, n):
+            raise InputError(f"values must have shape ({t.size}, {n}) for t of shape {t.shape}, got {v.shape}")
+        return ("table", t.tolist(), v.ravel().tolist(), self.kind)
+
+
+def _arity(f) -> bool:
+    """True for ``f(t, theta, omega)``, False for ``f(t)``."""
+    try:
+        params = [p for p in inspect.signature(f).parameters.values()
+                  if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD) and p.default is p.empty]
+        varargs = any(p.kind == p.VAR_POSITIONAL for p in inspect.signature(f).parameters.values())
+    except (TypeError, ValueError):
+        return False
+    if len(params) == 3 or (varargs and len(params) < 3):
+        return True
+    if len(params) == 1:
+        return False
+    raise InputError(f"a torque function must take (t) or (t, theta, omega), got {len(params)} required arguments")
+
+
+def normalise_torque(torque, joint_torque, n):
+    """-> (spec tuple for the core or None, joint convention?)."""
+    if torque is not None and joint_torque is not None:
+        raise InputError("give torque (generalized, on absolute angles) or joint_torque (joint motors), not both")
+    joint = joint_torque is not None
+    x = joint_torque if joint else torque
+    name = "joint_torque" if joint else "torque"
+    if x is None:
+        return None, False
+    if isinstance(x, (Sinusoid, Table)):
+        return x._spec(n), joint
+    if callable(x):
+        return ("callable", x, _arity(x)), joint
+    a = np.asarray(x, dtype=np.float64)
+    if a.shape != (n,) and not (n == 1 and a.ndim == 0):
+        raise InputError(f"{name} must have {n} entries (one per link), got shape {a.shape}")
+    a = a.reshape(n)
+    if not np.isfinite(a).all():
+        i = int(np.argwhere(~np.isfinite(a))[0][0])
+        raise InputError(f"{name}[{i}] must be finite, got {a[i]}")
+    return ("constant", a.tolist()), joint

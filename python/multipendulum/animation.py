@@ -1,0 +1,241 @@
+"""Animations of a run: GIF through Pillow, MP4 through the ffmpeg shipped by imageio-ffmpeg.
+
+Frames are drawn with Matplotlib's Agg canvas (no GUI backend, no pyplot state): the static
+parts (axes, pivot) once, then per frame the rods, the bobs, the fading trail of the last tip
+and the time and energy-error labels. Joint positions come from the chain
+(``chain.positions``) at each frame time, so links stay rigid between samples.
+"""
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+from typing import Any, Callable, Optional, Union
+
+import numpy as np
+
+from .results import atomic_path, series
+
+__all__ = ["animate", "frame_times"]
+
+PathLike = Union[str, "os.PathLike[str]"]
+_FORMATS = (".gif", ".mp4")
+_ROD = "#2b2b2b"
+_BOB = "#1f77b4"
+_TRAIL = np.array([0.84, 0.15, 0.16])  # tab:red
+
+
+def frame_times(t0: float, t1: float, fps: float, speed: float) -> np.ndarray:
+    """Simulation time of each frame: real-time playback at ``speed`` = 1, frames 1/fps apart."""
+    step = speed / fps
+    count = int(math.floor((t1 - t0) / step + 1e-9)) + 1
+    return t0 + step * np.arange(count)
+
+
+def animate(
+    sol: Any,
+    path: PathLike,
+    fps: float = 30,
+    trail: float = 2.0,
+    speed: float = 1.0,
+    dpi: float = 80,
+    size: float = 5.0,
+    title: Optional[str] = None,
+    progress: Optional[Callable[[float], Any]] = None,
+) -> Path:
+    """Write an animation of a solution (or loaded results) to ``path`` (``.gif`` or ``.mp4``).
+
+    ``fps`` frames per second of the file; ``speed`` simulated seconds per second of playback
+    (1 = real time); ``trail`` seconds of simulated time the last link's tip leaves behind
+    (0 for none); ``size`` the frame's side in inches at ``dpi`` dots per inch (rounded to a
+    multiple of 16 pixels, which video encoders like). The file is written atomically.
+    ``progress`` (optional) is called with the fraction of frames drawn.
+    Returns the path.
+    """
+    from multipendulum import InputError
+
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in _FORMATS:
+        raise InputError(f"animation file must end in .gif or .mp4, got {str(path)!r}")
+    for name, value, low in (("fps", fps, 0.0), ("speed", speed, 0.0), ("dpi", dpi, 0.0), ("size", size, 0.0)):
+        if not (isinstance(value, (int, float)) and math.isfinite(value) and value > low):
+            raise InputError(f"{name} must be > 0, got {value!r}")
+    if not (isinstance(trail, (int, float)) and math.isfinite(trail) and trail >= 0):
+        raise InputError(f"trail must be >= 0, got {trail!r}")
+
+    view = series(sol)
+    times = frame_times(float(view.t[0]), float(view.t[-1]), fps, speed)
+    joints = _frame_positions(view, times)
+    painter = _Painter(view, dpi=dpi, size=size, title=title, speed=speed)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    frames = (painter.frame(k, times[k], joints[k], trail) for k in range(len(times)))
+    with atomic_path(path) as tmp:
+        if suffix == ".gif":
+            _write_gif(tmp, frames, len(times), fps, progress)
+        else:
+            _write_mp4(tmp, frames, len(times), fps, painter.pixels, progress)
+    return path
+
+
+def _frame_positions(view, times: np.ndarray) -> np.ndarray:
+    """(F, N, 2) joint positions at the frame times: the chain's positions of the angles
+    interpolated between samples (exact at sample times); without a chain, the nearest sample."""
+    t = view.t
+    if view.chain is not None and len(t) > 1:
+        theta = np.empty((len(times), view.theta.shape[1]))
+        for i in range(view.theta.shape[1]):
+            theta[:, i] = np.interp(times, t, view.theta[:, i])
+        return np.asarray(view.chain.positions(theta), dtype=float)
+    idx = np.clip(np.searchsorted(t, times), 0, len(t) - 1)
+    prev = np.clip(idx - 1, 0, len(t) - 1)
+    nearer_prev = np.abs(times - t[prev]) < np.abs(t[idx] - times)
+    return view.positions[np.where(nearer_prev, prev, idx)]
+
+
+class _Painter:
+    def __init__(self, view, dpi: float, size: float, title: Optional[str], speed: float):
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.collections import LineCollection
+        from matplotlib.figure import Figure
+
+        self.view = view
+        pixels = max(64, 16 * int(round(size * dpi / 16)))
+        self.pixels = pixels
+        self.fig = Figure(figsize=(pixels / dpi, pixels / dpi), dpi=dpi)
+        self.canvas = FigureCanvasAgg(self.fig)
+        ax = self.fig.add_axes((0.11, 0.09, 0.85, 0.82))
+        self.ax = ax
+        lengths, masses = view.lengths, view.masses
+        reach = float(np.sum(lengths)) * 1.1
+        ax.set_xlim(-reach, reach)
+        ax.set_ylim(-reach, reach)
+        ax.set_aspect("equal")
+        ax.set_xlabel("x (m)", fontsize=8)
+        ax.set_ylabel("y (m)", fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.grid(alpha=0.25)
+        if title is None:
+            title = view.name or f"{lengths.shape[0]}-link pendulum"
+            if view.method:
+                title += f" ({view.method})"
+        self.fig.suptitle(title, fontsize=9, y=0.975)
+        if speed != 1:
+            ax.text(0.99, 0.99, f"speed x{speed:g}", transform=ax.transAxes, ha="right", va="top", fontsize=7)
+
+        # Sizes in points from the axes' scale, so a 50-link chain has small bobs and thin rods.
+        ax_width_pt = 0.85 * pixels / dpi * 72.0
+        pt_per_m = ax_width_pt / (2 * reach)
+        shortest = float(np.min(lengths)) * pt_per_m
+        rod_width = float(np.clip(0.08 * shortest, 0.8, 3.5))
+        biggest = float(np.clip(0.45 * shortest, 2.0, 16.0))
+        m_max = float(np.max(masses)) if np.max(masses) > 0 else 1.0
+        diameters = biggest * np.sqrt(np.clip(masses, 0, None) / m_max)
+        self.bob_sizes = diameters ** 2
+        self.com_fraction = view.com / lengths  # where on each link its mass sits, for the bobs
+
+        # Static: the support and the fixed pivot.
+        ax.plot([-0.08 * reach, 0.08 * reach], [0, 0], color="black", lw=2.0, solid_capstyle="butt")
+        self.trail = LineCollection([], linewidths=1.4, capstyle="round")
+        ax.add_collection(self.trail)
+        (self.rods,) = ax.plot([], [], "-", color=_ROD, lw=rod_width, solid_capstyle="round", zorder=3)
+        self.bobs = ax.scatter([], [], s=[], c=_BOB, edgecolors="black", linewidths=0.5, zorder=4)
+        (self.pivot,) = ax.plot([0], [0], "o", color="black", ms=max(3.0, 0.6 * rod_width + 2.5), zorder=5)
+        self.time_text = ax.text(0.02, 0.98, "", transform=ax.transAxes, va="top", fontsize=8,
+                                 family="monospace")
+        self.err_text = ax.text(0.02, 0.92, "", transform=ax.transAxes, va="top", fontsize=8,
+                                family="monospace")
+        # Blitting: the static picture is rendered once; each frame restores it and draws only
+        # the moving artists on top (ten times faster than redrawing the axes every frame).
+        self.moving = [self.trail, self.rods, self.bobs, self.pivot, self.time_text, self.err_text]
+        for artist in self.moving:
+            artist.set_animated(True)
+        self.canvas.draw()
+        self.background = self.canvas.copy_from_bbox(self.fig.bbox)
+
+    def frame(self, k: int, t: float, joints: np.ndarray, trail: float) -> np.ndarray:
+        """Draw the chain at time t and return the frame as an (H, W, 3) uint8 array."""
+        view = self.view
+        chain = np.vstack([[0.0, 0.0], joints])
+        self.rods.set_data(chain[:, 0], chain[:, 1])
+        starts = chain[:-1]
+        bobs = starts + self.com_fraction[:, None] * (chain[1:] - starts)
+        self.bobs.set_offsets(bobs)
+        self.bobs.set_sizes(self.bob_sizes)
+        self.trail.set_segments(self._trail_segments(t, joints[-1], trail))
+        self.trail.set_color(self._trail_colors)
+        self.time_text.set_text(f"t = {t:7.2f} s")
+        err = float(np.interp(t, view.t, view.energy_error))
+        self.err_text.set_text(f"energy error {err:8.1e}")
+        self.canvas.restore_region(self.background)
+        for artist in self.moving:  # in zorder: trail, rods, bobs, pivot, labels
+            self.ax.draw_artist(artist)
+        rgba = np.asarray(self.canvas.buffer_rgba())
+        return np.ascontiguousarray(rgba[..., :3])
+
+    def _trail_segments(self, t: float, tip: np.ndarray, trail: float):
+        view = self.view
+        if trail <= 0:
+            self._trail_colors = np.zeros((0, 4))
+            return []
+        lo = np.searchsorted(view.t, t - trail, side="left")
+        hi = np.searchsorted(view.t, t, side="left")
+        pts = np.vstack([view.positions[lo:hi, -1, :], tip[None, :]])
+        times = np.append(view.t[lo:hi], t)
+        if len(pts) < 2:
+            self._trail_colors = np.zeros((0, 4))
+            return []
+        segments = np.stack([pts[:-1], pts[1:]], axis=1)
+        age = t - 0.5 * (times[:-1] + times[1:])
+        alpha = np.clip(1.0 - age / trail, 0.0, 1.0) ** 1.5 * 0.9
+        colors = np.empty((len(segments), 4))
+        colors[:, :3] = _TRAIL
+        colors[:, 3] = alpha
+        self._trail_colors = colors
+        return segments
+
+
+def _report(progress, done: int, total: int) -> None:
+    if progress is not None:
+        progress(done / total)
+
+
+def _write_gif(path: Path, frames, count: int, fps: float, progress) -> None:
+    from PIL import Image
+
+    images = []
+    palette = None
+    for k, frame in enumerate(frames):
+        image = Image.fromarray(frame)
+        if palette is None:
+            # One palette for every frame (no flicker). It is taken from the first frame plus the
+            # colours the trail will fade through, which the first frame does not show yet.
+            alpha = 0.9 * np.linspace(0.0, 1.0, 64)[:, None]
+            fade = np.round(255 * (1 - alpha + alpha * _TRAIL[None, :])).astype(np.uint8)
+            swatch = np.repeat(np.repeat(fade[:, None, :], frame.shape[1], axis=1), 2, axis=0)
+            sample = np.ascontiguousarray(np.concatenate([frame, swatch], axis=0))
+            palette = Image.fromarray(sample).quantize(colors=255, method=Image.Quantize.MEDIANCUT)
+        images.append(image.quantize(palette=palette, dither=Image.Dither.NONE))
+        _report(progress, k + 1, count)
+    # GIF delays are in hundredths of a second: spread the rounding so playback stays real-time.
+    ticks = np.round(np.arange(count + 1) * 100.0 / fps).astype(int)
+    durations = [int(10 * max(1, d)) for d in np.diff(ticks)] or [int(1000 / fps)]
+    images[0].save(path, format="GIF", save_all=True, append_images=images[1:], duration=durations,
+                   loop=0, optimize=False, disposal=1)
+
+
+def _write_mp4(path: Path, frames, count: int, fps: float, pixels: int, progress) -> None:
+    import imageio_ffmpeg
+
+    writer = imageio_ffmpeg.write_frames(
+        str(path), (pixels, pixels), fps=fps, codec="libx264", pix_fmt_in="rgb24",
+        pix_fmt_out="yuv420p", quality=7, macro_block_size=16, ffmpeg_log_level="error",
+        output_params=["-movflags", "+faststart"],
+    )
+    writer.send(None)
+    try:
+        for k, frame in enumerate(frames):
+            writer.send(np.ascontiguousarray(frame))
+            _report(progress, k + 1, count)
+    finally:
+        writer.close()

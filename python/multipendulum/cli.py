@@ -1,0 +1,333 @@
+"""The ``multipendulum`` command.
+
+Subcommands: ``run`` a scenario file, ``animate`` or ``plot`` a results file, ``demo`` (the
+chaotic double pendulum, end to end). Each subcommand is one function decorated with
+:func:`command`, which adds its parser and sets its handler; adding a subcommand means adding
+one such function. Handlers return the exit status.
+
+Exit status: 0 on success, 1 for a bad scenario, bad input or a failed integration (the message
+names the problem and nothing is written), 2 for bad command-line usage, 130 when interrupted.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+from typing import Any, Callable, List, Optional, Sequence, TextIO
+
+__all__ = ["main", "command", "ProgressBar", "build_parser"]
+
+PROG = "multipendulum"
+_COMMANDS: List[Callable[[Any, argparse.ArgumentParser], None]] = []
+
+
+def command(add: Callable[[Any, argparse.ArgumentParser], None]):
+    """Register a subcommand: ``add(subparsers, common)`` adds its parser (with
+    ``parents=[common]`` for the shared options such as ``--quiet``) and calls
+    ``set_defaults(handler=fn)`` with ``fn(args) -> int``."""
+    _COMMANDS.append(add)
+    return add
+
+
+# ----------------------------------------------------------------------------------------------
+# Progress
+
+
+class ProgressBar:
+    """A one-line progress bar on stderr, shown only on a terminal, only when not quiet, and only
+    once the job has taken more than ``delay`` seconds. Call it with a fraction in [0, 1]."""
+
+    def __init__(self, label: str, quiet: bool = False, stream: Optional[TextIO] = None,
+                 delay: float = 1.0, width: int = 30):
+        self.stream = sys.stderr if stream is None else stream
+        isatty = getattr(self.stream, "isatty", None)
+        self.enabled = not quiet and bool(isatty and isatty())
+        self.label = label
+        self.delay = delay
+        self.width = width
+        self.start = time.monotonic()
+        self.shown = False
+        self._last = 0.0
+        self._fraction = 0.0
+
+    def __call__(self, fraction: float) -> None:
+        if not self.enabled:
+            return
+        fraction = min(max(float(fraction), 0.0), 1.0)
+        self._fraction = fraction
+        now = time.monotonic()
+        if now - self.start < self.delay or (now - self._last < 0.1 and fraction < 1.0):
+            return
+        self._last = now
+        self.shown = True
+        filled = int(round(self.width * fraction))
+        bar = "#" * filled + "-" * (self.width - filled)
+        self.stream.write(f"\r{self.label} [{bar}] {100 * fraction:5.1f}%  {now - self.start:6.1f} s")
+        self.stream.flush()
+
+    def close(self) -> None:
+        if self.shown:
+            self.stream.write("\n")
+            self.stream.flush()
+            self.shown = False
+
+    def __enter__(self) -> "ProgressBar":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+# ----------------------------------------------------------------------------------------------
+# Shared pieces
+
+
+def _say(args, *lines: str) -> None:
+    if not args.quiet:
+        for line in lines:
+            print(line)
+
+
+def _summary(scenario, sol) -> List[str]:
+    stats = sol.stats
+    n = sol.theta.shape[1]
+    head = f"{scenario.name}: " if scenario.name else ""
+    steps = f"{stats.steps} steps"
+    if getattr(stats, "rejected", 0):
+        steps += f" ({stats.rejected} rejected)"
+    return [
+        f"{head}N = {n}, method {sol.method}, t_end = {scenario.t_end:g} s, {len(sol.t)} samples",
+        f"  {steps}, {stats.evaluations} evaluations, wall time {stats.wall_time:.3g} s",
+        f"  max energy error {stats.energy_error:.3g} (|E - E0 - W| / |E0|)",
+    ]
+
+
+def _run_scenario(args, scenario, outdir: Path) -> int:
+    """Simulate a checked scenario and write its outputs into ``outdir``."""
+    from .animation import animate, frame_times
+    from .plotting import plot
+    from .results import save_results
+
+    outputs = scenario.outputs
+    if getattr(args, "t_end", None) is not None:
+        scenario = scenario.replace(t_end=args.t_end)
+    with ProgressBar("simulate", quiet=args.quiet) as bar:
+        sol = scenario.run(progress=bar)
+    _say(args, *_summary(scenario, sol))
+
+    results_name = outputs.results
+    if args.format is not None:
+        results_name = str(Path(results_name).with_suffix("." + args.format))
+    outdir.mkdir(parents=True, exist_ok=True)
+    written = [save_results(sol, outdir / results_name, scenario=scenario)]
+    if outputs.animation and not args.no_animation:
+        with ProgressBar("animate ", quiet=args.quiet) as bar:
+            written.append(animate(
+                sol, outdir / outputs.animation, fps=outputs.fps, trail=outputs.trail,
+                speed=outputs.speed, dpi=outputs.dpi, progress=bar,
+                title=f"{scenario.name} ({sol.method})" if scenario.name else None,
+            ))
+        frames = len(frame_times(sol.t[0], sol.t[-1], outputs.fps, outputs.speed))
+        written[-1] = f"{written[-1]} ({frames} frames)"
+    if outputs.plots and not args.no_plots:
+        written += plot(sol, outdir, kinds=outputs.plots, title=scenario.name or None)
+    _say(args, *(f"wrote {w}" for w in written))
+    return 0
+
+
+def _add_run_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--t-end", type=float, metavar="SECONDS",
+                   help="simulate this long instead of the scenario's t_end (recorded in the results)")
+    p.add_argument("--format", choices=("npz", "csv"),
+                   help="results file format (default: from the scenario's output.results, npz)")
+    p.add_argument("--no-animation", action="store_true", help="do not write the animation")
+    p.add_argument("--no-plots", action="store_true", help="do not write the plots")
+
+
+# ----------------------------------------------------------------------------------------------
+# Subcommands
+
+
+@command
+def _add_run(sub, common) -> None:
+    p = sub.add_parser(
+        "run", parents=[common], help="simulate a scenario file and write results, animation, plots",
+        description="Simulate a scenario (TOML, see docs/cli.md); print a summary; write the results "
+                    "file and, unless told not to, the animation and the plots into DIR.",
+    )
+    p.add_argument("scenario", type=Path, metavar="SCENARIO", help="scenario file (.toml)")
+    p.add_argument("-o", "--output", type=Path, metavar="DIR",
+                   help="output directory (default: out/<scenario name>)")
+    _add_run_options(p)
+    p.set_defaults(handler=_cmd_run)
+
+
+def _cmd_run(args) -> int:
+    from .scenario import load_scenario
+
+    scenario = load_scenario(args.scenario)
+    outdir = args.output if args.output is not None else Path("out") / args.scenario.stem
+    return _run_scenario(args, scenario, outdir)
+
+
+@command
+def _add_animate(sub, common) -> None:
+    p = sub.add_parser(
+        "animate", parents=[common], help="animate a results file (GIF or MP4)",
+        description="Draw an animation of a results file: rods, bobs sized by mass, a fading trail "
+                    "of the last tip, time and energy error on each frame. Real-time by default.",
+    )
+    p.add_argument("results", type=Path, metavar="RESULTS", help="results file (.npz or .csv)")
+    p.add_argument("-o", "--output", type=Path, required=True, metavar="OUT",
+                   help="animation file, ending in .gif or .mp4")
+    p.add_argument("--fps", type=float, help="frames per second (default: the scenario's, or 30)")
+    p.add_argument("--trail", type=float, metavar="SECONDS",
+                   help="length of the tip's trail in simulated seconds, 0 for none (default 2)")
+    p.add_argument("--speed", type=float, help="simulated seconds per second of playback (default 1)")
+    p.add_argument("--dpi", type=float, help="resolution (default 80, for a 400x400 frame)")
+    p.set_defaults(handler=_cmd_animate)
+
+
+def _cmd_animate(args) -> int:
+    from .animation import animate, frame_times
+    from .results import load_results
+    from .scenario import Outputs
+
+    results = _load(args.results, load_results)
+    outputs = Outputs()
+    try:
+        scenario = results.scenario()
+    except Exception:  # a stored scenario that no longer checks does not stop an animation
+        scenario = None
+    if scenario is not None:
+        outputs = scenario.outputs
+    fps = args.fps if args.fps is not None else outputs.fps
+    speed = args.speed if args.speed is not None else outputs.speed
+    with ProgressBar("animate ", quiet=args.quiet) as bar:
+        path = animate(
+            results, args.output, fps=fps,
+            trail=args.trail if args.trail is not None else outputs.trail,
+            speed=speed, dpi=args.dpi if args.dpi is not None else outputs.dpi, progress=bar,
+        )
+    frames = len(frame_times(results.t[0], results.t[-1], fps, speed))
+    _say(args, f"wrote {path} ({frames} frames)")
+    return 0
+
+
+@command
+def _add_plot(sub, common) -> None:
+    from .plotting import PLOT_KINDS
+
+    p = sub.add_parser(
+        "plot", parents=[common], help="plot a results file (angles, energy error, phase, tip)",
+        description="Write PNG plots of a results file: angles vs time, energy error vs time (log "
+                    "scale), phase portraits, and the trace of the last link's tip.",
+    )
+    p.add_argument("results", type=Path, metavar="RESULTS", help="results file (.npz or .csv)")
+    p.add_argument("-o", "--output", type=Path, required=True, metavar="DIR", help="output directory")
+    p.add_argument("--kinds", nargs="+", choices=PLOT_KINDS, default=list(PLOT_KINDS), metavar="KIND",
+                   help=f"which plots (default: all of {', '.join(PLOT_KINDS)})")
+    p.set_defaults(handler=_cmd_plot)
+
+
+def _cmd_plot(args) -> int:
+    from .plotting import plot
+    from .results import load_results
+
+    results = _load(args.results, load_results)
+    paths = plot(results, args.output, kinds=args.kinds)
+    _say(args, *(f"wrote {p}" for p in paths))
+    return 0
+
+
+@command
+def _add_demo(sub, common) -> None:
+    p = sub.add_parser(
+        "demo", parents=[common], help="the chaotic double pendulum, end to end",
+        description="Run the default scenario (a chaotic double pendulum) and write its results, "
+                    "GIF and plots. The scenario is printed by --show-scenario: copy it to start "
+                    "your own.",
+    )
+    p.add_argument("-o", "--output", type=Path, default=Path("out") / "demo", metavar="DIR",
+                   help="output directory (default: out/demo)")
+    p.add_argument("--show-scenario", action="store_true",
+                   help="print the demo's scenario file and exit")
+    _add_run_options(p)
+    p.set_defaults(handler=_cmd_demo)
+
+
+def _cmd_demo(args) -> int:
+    from .scenario import default_scenario_path, load_scenario
+
+    path = default_scenario_path()
+    if args.show_scenario:
+        sys.stdout.write(path.read_text(encoding="utf-8"))
+        return 0
+    return _run_scenario(args, load_scenario(path), args.output)
+
+
+# ----------------------------------------------------------------------------------------------
+# Entry point
+
+
+def _load(path: Path, loader):
+    if not path.exists():
+        from multipendulum import InputError
+
+        raise InputError(f"{path}: no such file")
+    return loader(path)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from multipendulum import __version__
+
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("-q", "--quiet", action="store_true",
+                        help="print nothing but errors (no summary, no progress bar)")
+    parser = argparse.ArgumentParser(
+        prog=PROG,
+        description="Simulate, animate and plot planar N-link pendulums. "
+                    "Start with `multipendulum demo`; see `multipendulum COMMAND --help`.",
+    )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    sub = parser.add_subparsers(title="commands", metavar="COMMAND")
+    for add in _COMMANDS:
+        add(sub, common)
+    return parser
+
+
+def _error(message: str) -> int:
+    print(f"{PROG}: error: {message}", file=sys.stderr)
+    return 1
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    import multipendulum as mp
+    from .scenario import ScenarioError
+
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help, --version, usage errors
+        return int(exc.code or 0) if not isinstance(exc.code, str) else 2
+    handler = getattr(args, "handler", None)
+    if handler is None:
+        parser.print_help(sys.stderr)
+        return 2
+    try:
+        return int(handler(args) or 0)
+    except ScenarioError as exc:
+        where = f"{exc.path}: " if exc.path is not None else ""
+        return _error(f"{where}{exc}")
+    except mp.IntegrationError as exc:
+        return _error(f"{exc}; nothing written")
+    except (mp.InputError, OSError) as exc:
+        return _error(str(exc))
+    except KeyboardInterrupt:
+        print(f"\n{PROG}: interrupted; files being written were removed", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

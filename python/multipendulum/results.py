@@ -1,0 +1,374 @@
+"""Results files: a solution's arrays plus what is needed to reproduce it.
+
+NPZ (the default) holds the arrays ``t`` (T,), ``theta``, ``omega``, ``p`` (T, N), ``energy``,
+``work``, ``energy_error`` (T,), ``positions`` (T, N, 2), the chain's ``lengths``, ``masses``,
+``com``, ``inertia`` (N,) and ``g``, and ``metadata``: a JSON string with the package version,
+the method, the run statistics, and the scenario text (with the contents of any file it names)
+when the run came from a scenario. CSV holds one row per sample with the metadata JSON on a
+``# metadata:`` comment line; links are numbered from 1 in its column names (``theta_1`` hangs
+from the pivot).
+
+Files are written atomically: to a temporary file in the target directory, flushed and fsynced,
+then renamed over the target. An interrupt or an error leaves either the old file or none.
+"""
+from __future__ import annotations
+
+import contextlib
+import datetime as _dt
+import io
+import json
+import os
+import platform
+import tempfile
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any, Callable, Dict, Iterator, Optional, Union
+
+import numpy as np
+
+import multipendulum as _mp
+from multipendulum import InputError
+
+__all__ = ["Results", "save_results", "load_results", "atomic_path", "series", "FORMATS"]
+
+PathLike = Union[str, "os.PathLike[str]"]
+FORMATS = ("npz", "csv")
+_FORMAT_NAME = "multipendulum-results"
+_FORMAT_VERSION = 1
+_SERIES = ("t", "theta", "omega", "p", "energy", "work", "energy_error", "positions")
+_CHAIN_ARRAYS = ("lengths", "masses", "com", "inertia")
+_STATS = ("steps", "rejected", "evaluations", "energy_error", "wall_time")
+
+
+class Results:
+    """A loaded results file. It has the arrays of a solution (``t``, ``theta``, ``omega``,
+    ``p``, ``energy``, ``work``, ``energy_error``, ``positions``), the chain's parameters, and
+    ``metadata`` (a dict: ``version``, ``method``, ``stats``, ``scenario`` ...), so it can be
+    passed to :func:`multipendulum.plot` and :func:`multipendulum.animate` like a solution."""
+
+    def __init__(self, arrays: Dict[str, np.ndarray], metadata: Dict[str, Any], path: Optional[Path] = None):
+        self.t = arrays["t"]
+        self.theta = arrays["theta"]
+        self.omega = arrays["omega"]
+        self.p = arrays["p"]
+        self.energy = arrays["energy"]
+        self.work = arrays["work"]
+        self.energy_error = arrays["energy_error"]
+        self.positions = arrays["positions"]
+        self.lengths = arrays["lengths"]
+        self.masses = arrays["masses"]
+        self.com = arrays["com"]
+        self.inertia = arrays["inertia"]
+        self.g = float(arrays["g"])
+        self.metadata = metadata
+        self.path = path
+        self._chain = None
+
+    @property
+    def n(self) -> int:
+        return int(self.lengths.shape[0])
+
+    @property
+    def method(self) -> str:
+        return str(self.metadata.get("method", ""))
+
+    @property
+    def version(self) -> str:
+        return str(self.metadata.get("version", ""))
+
+    @property
+    def stats(self) -> SimpleNamespace:
+        return SimpleNamespace(**{k: self.metadata.get("stats", {}).get(k) for k in _STATS})
+
+    @property
+    def chain(self):
+        """The :class:`multipendulum.Chain` rebuilt from the stored parameters."""
+        if self._chain is None:
+            self._chain = _mp.Chain(
+                lengths=self.lengths, masses=self.masses, com=self.com, inertia=self.inertia, g=self.g
+            )
+        return self._chain
+
+    def scenario(self):
+        """The scenario this run came from (``None`` if it was saved from a plain solution)."""
+        info = self.metadata.get("scenario")
+        if not info:
+            return None
+        from .scenario import loads_scenario
+
+        scenario = loads_scenario(info["text"], files=info.get("files") or {}, path=info.get("path"))
+        overrides = info.get("overrides") or {}
+        return scenario.replace(**overrides) if overrides else scenario
+
+    def __repr__(self) -> str:
+        where = f" from {str(self.path)!r}" if self.path else ""
+        return (f"<Results{where}: N = {self.n}, {self.t.shape[0]} samples, "
+                f"t = {self.t[0]:g}..{self.t[-1]:g} s, method {self.method!r}>")
+
+
+# ----------------------------------------------------------------------------------------------
+# Atomic writes
+
+
+@contextlib.contextmanager
+def atomic_path(path: PathLike) -> Iterator[Path]:
+    """Yield a temporary path beside ``path`` (same suffix, so writers that look at it still
+    work); when the block succeeds, fsync it and rename it over ``path``; otherwise delete it."""
+    path = Path(path)
+    directory = path.parent if str(path.parent) else Path(".")
+    fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{path.name}.", suffix=f".tmp{path.suffix}")
+    os.close(fd)
+    tmp_path = Path(tmp)
+    try:
+        yield tmp_path
+        os.chmod(tmp_path, 0o666 & ~_umask())  # mkstemp makes it private; give it a normal file's mode
+        _fsync_file(tmp_path)
+        os.replace(tmp_path, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp_path.unlink()
+        raise
+    _fsync_dir(directory)
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def _fsync_file(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _fsync_dir(directory: Path) -> None:
+    if os.name != "posix":
+        return
+    with contextlib.suppress(OSError):
+        fd = os.open(directory, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+# ----------------------------------------------------------------------------------------------
+# Saving
+
+
+def _version() -> str:
+    version = getattr(_mp, "__version__", None)
+    if version:
+        return str(version)
+    try:
+        from importlib.metadata import version as _dist_version
+
+        return _dist_version("multipendulum")
+    except Exception:  # pragma: no cover - not installed
+        return "unknown"
+
+
+def _plain(value: Any) -> Any:
+    """Numbers from NumPy (or the core) as plain JSON values."""
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, (np.floating, np.integer, np.bool_)):
+        return value.item()
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return str(value)
+
+
+def _collect(sol: Any) -> Dict[str, np.ndarray]:
+    """The arrays of a solution or of loaded results, as float64 C-contiguous arrays."""
+    arrays = {}
+    for name in _SERIES:
+        arrays[name] = np.ascontiguousarray(np.asarray(getattr(sol, name), dtype=np.float64))
+    chain = sol if isinstance(sol, Results) else sol.chain
+    for name in _CHAIN_ARRAYS:
+        arrays[name] = np.ascontiguousarray(np.asarray(getattr(chain, name), dtype=np.float64))
+    arrays["g"] = np.asarray(float(chain.g), dtype=np.float64)
+    t_count, n = arrays["theta"].shape
+    for name in ("omega", "p"):
+        if arrays[name].shape != (t_count, n):
+            raise InputError(f"{name} must have shape {(t_count, n)}, got {arrays[name].shape}")
+    if arrays["positions"].shape != (t_count, n, 2):
+        raise InputError(f"positions must have shape {(t_count, n, 2)}, got {arrays['positions'].shape}")
+    return arrays
+
+
+def _metadata(sol: Any, scenario: Any) -> Dict[str, Any]:
+    if isinstance(sol, Results):
+        meta = dict(sol.metadata)
+        if scenario is not None:
+            meta["scenario"] = scenario.metadata()
+        return meta
+    stats = getattr(sol, "stats", None)
+    return {
+        "format": _FORMAT_NAME,
+        "format_version": _FORMAT_VERSION,
+        "version": _version(),
+        "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "method": str(getattr(sol, "method", "")),
+        "stats": {k: _plain(getattr(stats, k, None)) for k in _STATS},
+        "scenario": None if scenario is None else scenario.metadata(),
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+    }
+
+
+def save_results(sol: Any, path: PathLike, scenario: Any = None, format: Optional[str] = None) -> Path:
+    """Write a solution (or loaded :class:`Results`) to ``path`` atomically and return the path.
+
+    ``format`` is ``"npz"`` or ``"csv"``; by default it follows the file suffix (``.csv`` for
+    CSV, NPZ otherwise). ``scenario`` (a :class:`~multipendulum.scenario.Scenario`) is stored in
+    the metadata so the run can be repeated.
+    """
+    path = Path(path)
+    if format is None:
+        format = "csv" if path.suffix.lower() == ".csv" else "npz"
+    if format not in FORMATS:
+        raise InputError(f"format must be one of {', '.join(FORMATS)}, got {format!r}")
+    arrays = _collect(sol)
+    meta = _metadata(sol, scenario)
+    writer: Callable[[Any], None]
+    if format == "npz":
+        def writer(f):
+            np.savez_compressed(f, metadata=np.asarray(json.dumps(meta)), **arrays)
+    else:
+        def writer(f):
+            f.write(_csv_text(arrays, meta).encode("utf-8"))
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as f:
+            writer(f)
+    return path
+
+
+def _csv_columns(n: int) -> list:
+    cols = ["t"]
+    for name in ("theta", "omega", "p"):
+        cols += [f"{name}_{i + 1}" for i in range(n)]
+    cols += ["energy", "work", "energy_error"]
+    for i in range(n):
+        cols += [f"x_{i + 1}", f"y_{i + 1}"]
+    return cols
+
+
+def _csv_text(arrays: Dict[str, np.ndarray], meta: Dict[str, Any]) -> str:
+    n = arrays["theta"].shape[1]
+    t_count = arrays["t"].shape[0]
+    chain = {k: arrays[k].tolist() for k in _CHAIN_ARRAYS}
+    chain["g"] = float(arrays["g"])
+    meta = dict(meta, chain=chain)
+    table = np.column_stack([
+        arrays["t"], arrays["theta"], arrays["omega"], arrays["p"],
+        arrays["energy"], arrays["work"], arrays["energy_error"],
+        arrays["positions"].reshape(t_count, 2 * n),
+    ])
+    buf = io.StringIO()
+    buf.write(f"# {_FORMAT_NAME} (format {_FORMAT_VERSION}), CSV; one row per sample, SI units, angles in rad\n")
+    buf.write("# metadata: " + json.dumps(meta) + "\n")
+    buf.write(",".join(_csv_columns(n)) + "\n")
+    np.savetxt(buf, table, fmt="%.17g", delimiter=",")
+    return buf.getvalue()
+
+
+def series(sol: Any) -> SimpleNamespace:
+    """What plots and animations draw, from a solution or loaded results: the time series, the
+    chain's parameters, a chain object when one can be had, and a short title."""
+    is_results = isinstance(sol, Results)
+    params = sol if is_results else sol.chain
+    view = SimpleNamespace(
+        t=np.asarray(sol.t, dtype=float),
+        theta=np.asarray(sol.theta, dtype=float),
+        omega=np.asarray(sol.omega, dtype=float),
+        energy_error=np.asarray(sol.energy_error, dtype=float),
+        positions=np.asarray(sol.positions, dtype=float),
+        lengths=np.asarray(params.lengths, dtype=float),
+        masses=np.asarray(params.masses, dtype=float),
+        com=np.asarray(params.com, dtype=float),
+        method=str(getattr(sol, "method", "")),
+        max_energy_error=None,
+        name="",
+        chain=None,
+    )
+    stats = getattr(sol, "stats", None)
+    if stats is not None and getattr(stats, "energy_error", None) is not None:
+        view.max_energy_error = float(stats.energy_error)
+    if is_results:
+        view.name = ((sol.metadata.get("scenario") or {}).get("name")) or ""
+        try:
+            view.chain = sol.chain
+        except Exception:  # the stored parameters no longer build a chain: draw stored positions
+            view.chain = None
+    else:
+        view.chain = sol.chain
+        view.name = str(getattr(sol, "name", "") or "")
+    return view
+
+
+# ----------------------------------------------------------------------------------------------
+# Loading
+
+
+def load_results(path: PathLike) -> Results:
+    """Read a results file written by :func:`save_results` (NPZ or CSV, told apart by content)."""
+    path = Path(path)
+    with open(path, "rb") as f:
+        head = f.read(4)
+    if head.startswith(b"PK"):
+        return _load_npz(path)
+    return _load_csv(path)
+
+
+def _load_npz(path: Path) -> Results:
+    with np.load(path, allow_pickle=False) as data:
+        missing = [k for k in ("metadata",) + _SERIES + _CHAIN_ARRAYS + ("g",) if k not in data.files]
+        if missing:
+            raise InputError(f"{str(path)!r} is not a multipendulum results file: missing {', '.join(missing)}")
+        arrays = {k: data[k] for k in _SERIES + _CHAIN_ARRAYS + ("g",)}
+        metadata = json.loads(str(data["metadata"][()]))
+    return Results(arrays, metadata, path)
+
+
+def _load_csv(path: Path) -> Results:
+    text = path.read_text(encoding="utf-8")
+    lines = text.splitlines()
+    metadata = None
+    header_index = None
+    for i, line in enumerate(lines):
+        if line.startswith("# metadata:"):
+            metadata = json.loads(line[len("# metadata:"):])
+        elif not line.startswith("#"):
+            header_index = i
+            break
+    if metadata is None or header_index is None or "chain" not in metadata:
+        raise InputError(f"{str(path)!r} is not a multipendulum results file (no '# metadata:' line)")
+    chain = metadata.pop("chain")
+    n = len(chain["lengths"])
+    columns = lines[header_index].split(",")
+    if columns != _csv_columns(n):
+        raise InputError(f"{str(path)!r}: unexpected CSV columns for N = {n}")
+    table = np.loadtxt(io.StringIO("\n".join(lines[header_index + 1:])), delimiter=",", ndmin=2)
+    if table.shape[1] != len(columns):
+        raise InputError(f"{str(path)!r}: expected {len(columns)} columns, got {table.shape[1]}")
+    t_count = table.shape[0]
+    cuts = np.cumsum([1, n, n, n, 1, 1, 1])
+    parts = np.split(table, cuts, axis=1)
+    arrays = {
+        "t": parts[0][:, 0], "theta": parts[1], "omega": parts[2], "p": parts[3],
+        "energy": parts[4][:, 0], "work": parts[5][:, 0], "energy_error": parts[6][:, 0],
+        "positions": parts[7].reshape(t_count, n, 2),
+        "g": np.asarray(chain["g"], dtype=np.float64),
+    }
+    arrays = {k: np.ascontiguousarray(v, dtype=np.float64) for k, v in arrays.items()}
+    for k in _CHAIN_ARRAYS:
+        arrays[k] = np.asarray(chain[k], dtype=np.float64)
+    return Results(arrays, metadata, path)

@@ -1,0 +1,636 @@
+"""Scenario files: a small TOML description of a chain, its start, the run and its outputs.
+
+A scenario is read strictly: an unknown key, a wrong type, a missing field or an out-of-range
+value raises :class:`ScenarioError` naming the key, the value and what was expected, e.g.
+``key 'chain.lengths[2]': must be > 0, got -1``. Array indices count from 0, as in the core's
+messages. Nothing is simulated or written until the whole file has been checked, including
+building the chain and the torque, so a bad file leaves no output behind.
+
+The format is documented, with an annotated example, in ``docs/cli.md``. In short::
+
+    name = "Chaotic double pendulum"
+    [chain]                      # lengths (m), masses (kg), optional com (m) and inertia (kg m^2)
+    lengths = [1.0, 1.0]
+    masses = [1.0, 1.0]
+    [initial]
+    unit = "degrees"             # or "radians"; applies to theta and omega (per second)
+    theta = [120, -10]
+    [simulation]
+    t_end = 10.0
+    method = "dop853"
+    [torque]                     # optional
+    kind = "sinusoid"            # "constant" | "sinusoid" | "table"
+    convention = "generalized"   # or "joint" (motor torque between link i-1 and link i)
+    amplitude = [0.5, 0.0]
+    frequency = [3.1, 0.0]
+    [output]
+    animation = "pendulum.gif"
+
+This module validates and converts; the physics (and its own validation) is in the core.
+"""
+from __future__ import annotations
+
+import copy
+import dataclasses
+import difflib
+import io
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple, Union
+
+import numpy as np
+
+try:  # Python >= 3.11
+    import tomllib as _toml
+except ModuleNotFoundError:  # pragma: no cover - Python 3.9/3.10
+    import tomli as _toml  # type: ignore[no-redef]
+
+import multipendulum as _mp  # attributes are looked up at call time (this module is imported by it)
+from multipendulum import InputError
+
+__all__ = [
+    "Scenario",
+    "TorqueSpec",
+    "Outputs",
+    "ScenarioError",
+    "load_scenario",
+    "loads_scenario",
+    "default_scenario_path",
+    "PLOT_KINDS",
+]
+
+PathLike = Union[str, "os.PathLike[str]"]
+
+#: Plot kinds known to :func:`multipendulum.plot`, in the order they are drawn.
+PLOT_KINDS = ("angles", "energy", "phase", "tip")
+_FIXED_STEP = ("rk4", "gauss4", "gauss6")
+_DEFAULT_METHODS = ("rk4", "dop853", "gauss4", "gauss6")
+
+
+class ScenarioError(InputError):
+    """A scenario file (or text) that cannot be used.
+
+    ``key`` is the dotted TOML key at fault (``"chain.lengths[2]"``), or ``None`` for a file that
+    cannot be read or parsed at all; ``path`` is the file, when there is one. ``str(error)`` is
+    the message without the path; the command line prefixes the path.
+    """
+
+    def __init__(self, message: str, key: Optional[str] = None, path: Optional[PathLike] = None):
+        self.key = key
+        self.path = None if path is None else Path(path)
+        self.detail = message
+        super().__init__(message if key is None else f"key '{key}': {message}")
+
+
+# ----------------------------------------------------------------------------------------------
+# The parsed scenario
+
+
+@dataclass(frozen=True)
+class TorqueSpec:
+    """A built-in driving torque read from ``[torque]``.
+
+    ``convention`` is ``"generalized"`` (the seed's torques conjugate to the absolute angles,
+    passed as ``torque=``) or ``"joint"`` (motor torques between link i-1 and link i, passed as
+    ``joint_torque=``). ``params`` holds per-link float lists: ``value`` for ``constant``;
+    ``amplitude``, ``frequency`` (rad/s), ``phase`` (rad), ``offset`` for ``sinusoid``; ``t``
+    and ``values`` (shape (K, N)) plus ``interpolation`` for ``table``.
+    """
+
+    kind: str
+    convention: str
+    params: Dict[str, Any]
+    file: Optional[str] = None
+
+    def build(self) -> Any:
+        """The torque object for :func:`multipendulum.simulate`."""
+        p = self.params
+        if self.kind == "constant":
+            return np.asarray(p["value"], dtype=float)
+        if self.kind == "sinusoid":
+            return _mp.Sinusoid(
+                np.asarray(p["amplitude"], dtype=float),
+                np.asarray(p["frequency"], dtype=float),
+                phase=np.asarray(p["phase"], dtype=float),
+                offset=np.asarray(p["offset"], dtype=float),
+            )
+        if self.kind == "table":
+            return _mp.Table(
+                np.asarray(p["t"], dtype=float),
+                np.asarray(p["values"], dtype=float),
+                kind=p["interpolation"],
+            )
+        raise AssertionError(self.kind)  # kinds are checked when the file is read
+
+    def simulate_kwargs(self) -> Dict[str, Any]:
+        name = "torque" if self.convention == "generalized" else "joint_torque"
+        return {name: self.build()}
+
+
+@dataclass(frozen=True)
+class Outputs:
+    """What ``multipendulum run`` writes, from ``[output]`` (file names are inside ``-o DIR``)."""
+
+    results: str = "results.npz"
+    animation: Optional[str] = "animation.gif"
+    plots: Tuple[str, ...] = PLOT_KINDS
+    fps: float = 30.0
+    trail: float = 2.0
+    speed: float = 1.0
+    dpi: float = 80.0
+
+    @property
+    def format(self) -> str:
+        return Path(self.results).suffix.lower().lstrip(".")
+
+
+@dataclass
+class Scenario:
+    """A checked scenario. Angles are in radians here, whatever unit the file used."""
+
+    name: str
+    description: str
+    chain: Dict[str, Any]
+    theta0: np.ndarray
+    omega0: np.ndarray
+    t_end: float
+    method: str = "dop853"
+    dt: Optional[float] = None
+    rtol: float = 1e-10
+    atol: float = 1e-12
+    sample_dt: float = 0.01
+    torque: Optional[TorqueSpec] = None
+    outputs: Outputs = field(default_factory=Outputs)
+    raw: Dict[str, Any] = field(default_factory=dict, repr=False)
+    text: str = field(default="", repr=False)
+    path: Optional[Path] = None
+    files: Dict[str, str] = field(default_factory=dict, repr=False)
+    overrides: Dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def n(self) -> int:
+        return len(self.chain["lengths"])
+
+    def build_chain(self):
+        """The :class:`multipendulum.Chain` this scenario describes."""
+        c = self.chain
+        try:
+            if c["kind"] == "rods":
+                return _mp.Chain.rods(lengths=c["lengths"], masses=c["masses"], g=c["g"])
+            return _mp.Chain(
+                lengths=c["lengths"], masses=c["masses"], com=c.get("com"),
+                inertia=c.get("inertia"), g=c["g"],
+            )
+        except ScenarioError:
+            raise
+        except InputError as exc:
+            raise ScenarioError(str(exc), key="chain", path=self.path) from exc
+
+    def build_torque(self) -> Dict[str, Any]:
+        """``{"torque": ...}`` or ``{"joint_torque": ...}`` (empty without a torque)."""
+        if self.torque is None:
+            return {}
+        try:
+            return self.torque.simulate_kwargs()
+        except ScenarioError:
+            raise
+        except InputError as exc:
+            raise ScenarioError(str(exc), key="torque", path=self.path) from exc
+
+    def t_eval(self) -> np.ndarray:
+        """Sample times: from 0 to ``t_end`` inclusive, evenly spaced, at most ``sample_dt`` apart."""
+        count = max(1, int(math.ceil(self.t_end / self.sample_dt - 1e-9)))
+        return np.linspace(0.0, self.t_end, count + 1)
+
+    def simulate_kwargs(self) -> Dict[str, Any]:
+        kwargs: Dict[str, Any] = dict(
+            method=self.method, dt=self.dt, rtol=self.rtol, atol=self.atol, t_eval=self.t_eval()
+        )
+        kwargs.update(self.build_torque())
+        return kwargs
+
+    def run(self, progress: Optional[Callable[[float], Any]] = None):
+        """Simulate with :func:`multipendulum.simulate` and return its solution."""
+        chain = self.build_chain()
+        kwargs = self.simulate_kwargs()
+        return _mp.simulate(chain, self.theta0, self.omega0, self.t_end, progress=progress, **kwargs)
+
+    def replace(self, **changes: Any) -> "Scenario":
+        """A copy with some fields changed (e.g. ``t_end``); the changes are kept in ``overrides``
+        so a results file says how its run differed from the scenario text."""
+        overrides = dict(self.overrides)
+        for key, value in changes.items():
+            if key not in {"t_end", "method", "dt", "rtol", "atol", "sample_dt", "outputs"}:
+                raise TypeError(f"cannot override {key!r}")
+            if key != "outputs":
+                overrides[key] = value
+        if "t_end" in changes:
+            _positive("simulation.t_end", changes["t_end"], self.path)
+        return dataclasses.replace(self, overrides=overrides, **changes)
+
+    def metadata(self) -> Dict[str, Any]:
+        """JSON-ready description for results files: enough to rerun the scenario."""
+        return {
+            "name": self.name,
+            "path": None if self.path is None else str(self.path),
+            "text": self.text,
+            "files": dict(self.files),
+            "overrides": {k: _jsonable(v) for k, v in self.overrides.items()},
+        }
+
+
+# ----------------------------------------------------------------------------------------------
+# Reading
+
+
+def default_scenario_path() -> Path:
+    """The demo scenario shipped with the package (the chaotic double pendulum)."""
+    return Path(__file__).resolve().parent / "data" / "default.toml"
+
+
+def load_scenario(path: PathLike) -> Scenario:
+    """Read and check a scenario file. Relative file names inside it (a torque table) are
+    resolved against the scenario's own directory."""
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise ScenarioError(f"cannot read scenario file: {exc.strerror or exc}", path=path) from exc
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ScenarioError(f"scenario file is not UTF-8 text: {exc}", path=path) from exc
+    return loads_scenario(text, base_dir=path.parent, path=path, files=None)
+
+
+def loads_scenario(
+    text: str,
+    base_dir: Optional[PathLike] = None,
+    path: Optional[PathLike] = None,
+    files: Optional[Mapping[str, str]] = None,
+) -> Scenario:
+    """Check a scenario given as TOML text.
+
+    ``files`` maps file names used in the text (a torque table) to their contents; it lets a
+    scenario stored in a results file be rerun without the original files. Names not in it are
+    read from ``base_dir``.
+    """
+    path = None if path is None else Path(path)
+    try:
+        raw = _toml.loads(text)
+    except _toml.TOMLDecodeError as exc:
+        raise ScenarioError(f"not valid TOML: {exc}", path=path) from exc
+    reader = _Reader(path, Path(base_dir) if base_dir is not None else None, files)
+    scenario = reader.scenario(raw, text)
+    # Build what the core will be given, so its own checks fail now rather than mid-run.
+    scenario.build_chain()
+    scenario.build_torque()
+    return scenario
+
+
+# ----------------------------------------------------------------------------------------------
+# The checker
+
+
+_TOP_KEYS = ("name", "description", "chain", "initial", "simulation", "torque", "output")
+_CHAIN_KEYS = ("kind", "n", "lengths", "masses", "com", "inertia", "g")
+_INITIAL_KEYS = ("unit", "theta", "omega")
+_SIM_KEYS = ("t_end", "method", "dt", "rtol", "atol", "sample_dt")
+_TORQUE_KEYS = {
+    "constant": ("kind", "convention", "value"),
+    "sinusoid": ("kind", "convention", "amplitude", "frequency", "phase", "offset"),
+    "table": ("kind", "convention", "file", "interpolation"),
+}
+_OUTPUT_KEYS = ("results", "animation", "plots", "fps", "trail", "speed", "dpi")
+_RAMP_KEYS = ("from", "to")
+
+
+def _describe(value: Any) -> str:
+    """A TOML value as the user wrote it, for messages."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return repr(value)
+    if isinstance(value, dict):
+        return "a table {" + ", ".join(value) + "}"
+    if isinstance(value, list):
+        text = "[" + ", ".join(_describe(v) for v in value[:6]) + (", ..." if len(value) > 6 else "") + "]"
+        return text
+    return str(value)
+
+
+def _type_name(value: Any) -> str:
+    if isinstance(value, bool):
+        return "a boolean"
+    if isinstance(value, (int, float)):
+        return "a number"
+    if isinstance(value, str):
+        return "a string"
+    if isinstance(value, list):
+        return "an array"
+    if isinstance(value, dict):
+        return "a table"
+    return type(value).__name__
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, (np.floating, np.integer)):
+        return value.item()
+    return value
+
+
+def _positive(key: str, value: Any, path: Optional[Path]) -> float:
+    if not _is_number(value):
+        raise ScenarioError(f"expected a number > 0, got {_type_name(value)} {_describe(value)}", key, path)
+    if not (math.isfinite(value) and value > 0):
+        raise ScenarioError(f"must be > 0, got {_describe(value)}", key, path)
+    return float(value)
+
+
+class _Reader:
+    def __init__(self, path: Optional[Path], base_dir: Optional[Path], files: Optional[Mapping[str, str]]):
+        self.path = path
+        self.base_dir = base_dir
+        self.files = dict(files or {})
+        self.used_files: Dict[str, str] = {}
+
+    # -- primitives ----------------------------------------------------------------------------
+
+    def error(self, key: str, message: str) -> ScenarioError:
+        return ScenarioError(message, key, self.path)
+
+    def table(self, raw: Any, key: str, allowed: Sequence[str]) -> Dict[str, Any]:
+        if not isinstance(raw, dict):
+            raise self.error(key, f"expected a table ([{key}]), got {_type_name(raw)} {_describe(raw)}")
+        for name in raw:
+            if name not in allowed:
+                full = f"{key}.{name}" if key else name
+                close = difflib.get_close_matches(name, allowed, n=1)
+                hint = f"did you mean '{close[0]}'? " if close else ""
+                raise self.error(full, f"unknown key; {hint}expected one of: {', '.join(allowed)}")
+        return raw
+
+    def require(self, table: Mapping[str, Any], key: str, name: str, expected: str) -> Any:
+        if name not in table:
+            raise self.error(_join(key, name), f"missing; expected {expected}")
+        return table[name]
+
+    def number(self, value: Any, key: str, *, positive=False, nonneg=False, integer=False) -> float:
+        if integer:
+            if not isinstance(value, int) or isinstance(value, bool):
+                raise self.error(key, f"expected an integer, got {_type_name(value)} {_describe(value)}")
+        elif not _is_number(value):
+            rule = " > 0" if positive else " >= 0" if nonneg else ""
+            raise self.error(key, f"expected a number{rule}, got {_type_name(value)} {_describe(value)}")
+        if not math.isfinite(value):
+            raise self.error(key, f"must be finite, got {_describe(value)}")
+        if positive and not value > 0:
+            raise self.error(key, f"must be > 0, got {_describe(value)}")
+        if nonneg and not value >= 0:
+            raise self.error(key, f"must be >= 0, got {_describe(value)}")
+        return value if integer else float(value)
+
+    def choice(self, value: Any, key: str, options: Sequence[str]) -> str:
+        if not isinstance(value, str) or value not in options:
+            listed = ", ".join(f'"{o}"' for o in options)
+            got = f"{_type_name(value)} {_describe(value)}" if not isinstance(value, str) else _describe(value)
+            close = difflib.get_close_matches(value, options, n=1) if isinstance(value, str) else []
+            hint = f" (did you mean \"{close[0]}\"?)" if close else ""
+            raise self.error(key, f"expected one of {listed}, got {got}{hint}")
+        return value
+
+    def per_link(self, value: Any, key: str, n: Optional[int], *, positive=False, nonneg=False,
+                 allow_ramp=False) -> List[float]:
+        """A number for every link, or one number for all of them (or a ``{from, to}`` ramp)."""
+        what = "a number or an array of numbers (one per link)"
+        if allow_ramp:
+            what += " or a table {from = ..., to = ...}"
+        if _is_number(value):
+            if n is None:
+                raise self.error(key, "a single number needs the number of links: give chain.n or lists")
+            self.number(value, key, positive=positive, nonneg=nonneg)
+            return [float(value)] * n
+        if isinstance(value, dict) and allow_ramp:
+            ramp = self.table(value, key, _RAMP_KEYS)
+            a = self.number(self.require(ramp, key, "from", "a number"), f"{key}.from")
+            b = self.number(self.require(ramp, key, "to", "a number"), f"{key}.to")
+            if n is None:
+                raise self.error(key, "a ramp needs the number of links")
+            return np.linspace(a, b, n).tolist() if n > 1 else [a]
+        if not isinstance(value, list):
+            raise self.error(key, f"expected {what}, got {_type_name(value)} {_describe(value)}")
+        if n is not None and len(value) != n:
+            raise self.error(key, f"expected {n} values (one per link), got {len(value)}")
+        if not value:
+            raise self.error(key, "expected at least one value, got an empty array")
+        return [self.number(v, f"{key}[{i}]", positive=positive, nonneg=nonneg) for i, v in enumerate(value)]
+
+    def read_file(self, name: str, key: str) -> str:
+        if name in self.files:
+            text = self.files[name]
+        else:
+            if self.base_dir is None:
+                raise self.error(key, f"cannot read {name!r}: the scenario has no directory to look in")
+            target = Path(name) if Path(name).is_absolute() else self.base_dir / name
+            try:
+                text = target.read_text(encoding="utf-8")
+            except OSError as exc:
+                raise self.error(key, f"cannot read {str(target)!r}: {exc.strerror or exc}") from exc
+        self.used_files[name] = text
+        return text
+
+    # -- sections ------------------------------------------------------------------------------
+
+    def scenario(self, raw: Dict[str, Any], text: str) -> Scenario:
+        self.table(raw, "", _TOP_KEYS)
+        name = raw.get("name", "")
+        if not isinstance(name, str):
+            raise self.error("name", f"expected a string, got {_type_name(name)} {_describe(name)}")
+        description = raw.get("description", "")
+        if not isinstance(description, str):
+            raise self.error("description", f"expected a string, got {_type_name(description)} {_describe(description)}")
+        chain = self.chain(self.require(raw, "", "chain", "a [chain] table with lengths and masses"))
+        n = len(chain["lengths"])
+        theta0, omega0 = self.initial(self.require(raw, "", "initial", "an [initial] table with unit and theta"), n)
+        sim = self.simulation(self.require(raw, "", "simulation", "a [simulation] table with t_end"))
+        torque = self.torque(raw["torque"], n) if "torque" in raw else None
+        outputs = self.outputs(raw.get("output", {}))
+        if not name and self.path is not None:
+            name = self.path.stem
+        return Scenario(
+            name=name, description=description, chain=chain, theta0=theta0, omega0=omega0,
+            torque=torque, outputs=outputs, raw=copy.deepcopy(raw), text=text, path=self.path,
+            files=dict(self.used_files), **sim,
+        )
+
+    def chain(self, raw: Any) -> Dict[str, Any]:
+        t = self.table(raw, "chain", _CHAIN_KEYS)
+        kind = self.choice(t.get("kind", "points"), "chain.kind", ("points", "rods"))
+        n = None
+        if "n" in t:
+            n = int(self.number(t["n"], "chain.n", integer=True))
+            if n < 1:
+                raise self.error("chain.n", f"must be >= 1, got {n}")
+        if n is None:
+            for name in ("lengths", "masses", "com", "inertia"):
+                if isinstance(t.get(name), list):
+                    n = len(t[name])
+                    break
+        lengths = self.per_link(self.require(t, "chain", "lengths", "link lengths in m (numbers > 0)"),
+                                "chain.lengths", n, positive=True)
+        n = len(lengths)
+        masses = self.per_link(self.require(t, "chain", "masses", "link masses in kg (numbers >= 0)"),
+                               "chain.masses", n, nonneg=True)
+        out: Dict[str, Any] = {"kind": kind, "lengths": lengths, "masses": masses}
+        for name, rule in (("com", {}), ("inertia", {"nonneg": True})):
+            if name in t:
+                if kind == "rods":
+                    raise self.error(f"chain.{name}", f'cannot be given with kind = "rods" (uniform rods '
+                                     f'have com = l/2 and inertia = m l^2/12); use kind = "points" '
+                                     f"to give {name} explicitly")
+                out[name] = self.per_link(t[name], f"chain.{name}", n, **rule)
+        out["g"] = self.number(t.get("g", 9.81), "chain.g")
+        return out
+
+    def initial(self, raw: Any, n: int) -> Tuple[np.ndarray, np.ndarray]:
+        t = self.table(raw, "initial", _INITIAL_KEYS)
+        unit = self.choice(self.require(t, "initial", "unit", '"degrees" or "radians"'), "initial.unit",
+                           ("degrees", "radians"))
+        scale = math.pi / 180.0 if unit == "degrees" else 1.0
+        theta = self.per_link(self.require(t, "initial", "theta", "initial angles, one per link"),
+                              "initial.theta", n, allow_ramp=True)
+        omega = self.per_link(t.get("omega", 0.0), "initial.omega", n, allow_ramp=True)
+        return np.asarray(theta) * scale, np.asarray(omega) * scale
+
+    def simulation(self, raw: Any) -> Dict[str, Any]:
+        t = self.table(raw, "simulation", _SIM_KEYS)
+        t_end = self.number(self.require(t, "simulation", "t_end", "the duration in s (a number > 0)"),
+                            "simulation.t_end", positive=True)
+        methods = tuple(getattr(_mp, "METHODS", _DEFAULT_METHODS))
+        method = self.choice(t.get("method", "dop853"), "simulation.method", methods)
+        dt = None
+        if "dt" in t:
+            dt = self.number(t["dt"], "simulation.dt", positive=True)
+        elif method in _FIXED_STEP:
+            raise self.error("simulation.dt", f'missing; method "{method}" takes fixed steps and needs '
+                             f"dt in s (a number > 0)")
+        out = {
+            "t_end": t_end, "method": method, "dt": dt,
+            "rtol": self.number(t.get("rtol", 1e-10), "simulation.rtol", positive=True),
+            "atol": self.number(t.get("atol", 1e-12), "simulation.atol", positive=True),
+            "sample_dt": self.number(t.get("sample_dt", 0.01), "simulation.sample_dt", positive=True),
+        }
+        if dt is not None and dt > t_end:
+            raise self.error("simulation.dt", f"must be <= t_end ({_describe(t_end)}), got {_describe(dt)}")
+        return out
+
+    def torque(self, raw: Any, n: int) -> TorqueSpec:
+        if not isinstance(raw, dict):
+            raise self.error("torque", f"expected a table ([torque]), got {_type_name(raw)} {_describe(raw)}")
+        kind = self.choice(self.require(raw, "torque", "kind", '"constant", "sinusoid" or "table"'),
+                           "torque.kind", tuple(_TORQUE_KEYS))
+        t = self.table(raw, "torque", _TORQUE_KEYS[kind])
+        convention = self.choice(
+            self.require(t, "torque", "convention",
+                         '"generalized" (torques on the absolute angles, as in seed 000) or "joint" '
+                         "(motor torques between link i-1 and link i)"),
+            "torque.convention", ("generalized", "joint"))
+        if kind == "constant":
+            value = self.per_link(self.require(t, "torque", "value", "torques in N m, one per link"),
+                                  "torque.value", n)
+            return TorqueSpec(kind, convention, {"value": value})
+        if kind == "sinusoid":
+            params = {
+                "amplitude": self.per_link(self.require(t, "torque", "amplitude", "amplitudes in N m"),
+                                           "torque.amplitude", n),
+                "frequency": self.per_link(self.require(t, "torque", "frequency", "angular frequencies in rad/s"),
+                                           "torque.frequency", n),
+                "phase": self.per_link(t.get("phase", 0.0), "torque.phase", n),
+                "offset": self.per_link(t.get("offset", 0.0), "torque.offset", n),
+            }
+            return TorqueSpec(kind, convention, params)
+        # table
+        name = self.require(t, "torque", "file", "a CSV file name (columns: t, then one torque per link)")
+        if not isinstance(name, str) or not name:
+            raise self.error("torque.file", f"expected a file name, got {_type_name(name)} {_describe(name)}")
+        interpolation = self.choice(t.get("interpolation", "linear"), "torque.interpolation", ("linear", "cubic"))
+        times, values = self.csv_table(self.read_file(name, "torque.file"), name, n)
+        return TorqueSpec(kind, convention, {"t": times, "values": values, "interpolation": interpolation}, file=name)
+
+    def csv_table(self, text: str, name: str, n: int) -> Tuple[List[float], List[List[float]]]:
+        key = "torque.file"
+        rows: List[List[float]] = []
+        for lineno, line in enumerate(io.StringIO(text), start=1):
+            stripped = line.split("#", 1)[0].strip()
+            if not stripped:
+                continue
+            cells = [c.strip() for c in stripped.split(",")]
+            try:
+                numbers = [float(c) for c in cells]
+            except ValueError:
+                if not rows and not any(_is_float(c) for c in cells):
+                    continue  # a header line
+                raise self.error(key, f"{name} line {lineno}: expected numbers, got {stripped!r}") from None
+            if len(numbers) != n + 1:
+                raise self.error(key, f"{name} line {lineno}: expected {n + 1} columns (t, then one torque "
+                                 f"per link), got {len(numbers)}")
+            if not all(math.isfinite(x) for x in numbers):
+                raise self.error(key, f"{name} line {lineno}: values must be finite, got {stripped!r}")
+            if rows and not numbers[0] > rows[-1][0]:
+                raise self.error(key, f"{name} line {lineno}: times must increase, got {numbers[0]!r} "
+                                 f"after {rows[-1][0]!r}")
+            rows.append(numbers)
+        if len(rows) < 2:
+            raise self.error(key, f"{name}: expected at least 2 rows of numbers, got {len(rows)}")
+        return [r[0] for r in rows], [r[1:] for r in rows]
+
+    def outputs(self, raw: Any) -> Outputs:
+        t = self.table(raw, "output", _OUTPUT_KEYS)
+        results = t.get("results", "results.npz")
+        if not isinstance(results, str) or Path(results).suffix.lower() not in (".npz", ".csv") \
+                or Path(results).name != results:
+            raise self.error("output.results", f"expected a file name ending in .npz or .csv, got {_describe(results)}")
+        animation = t.get("animation", "animation.gif")
+        if animation is False:
+            animation = None
+        elif not isinstance(animation, str) or Path(animation).suffix.lower() not in (".gif", ".mp4") \
+                or Path(animation).name != animation:
+            raise self.error("output.animation",
+                             f"expected a file name ending in .gif or .mp4, or false, got {_describe(animation)}")
+        plots = t.get("plots", True)
+        if plots is True:
+            kinds: Tuple[str, ...] = PLOT_KINDS
+        elif plots is False:
+            kinds = ()
+        elif isinstance(plots, list):
+            kinds = tuple(self.choice(k, f"output.plots[{i}]", PLOT_KINDS) for i, k in enumerate(plots))
+        else:
+            raise self.error("output.plots", f"expected true, false or an array of plot kinds "
+                             f"({', '.join(PLOT_KINDS)}), got {_describe(plots)}")
+        return Outputs(
+            results=results, animation=animation, plots=kinds,
+            fps=self.number(t.get("fps", 30), "output.fps", positive=True),
+            trail=self.number(t.get("trail", 2.0), "output.trail", nonneg=True),
+            speed=self.number(t.get("speed", 1.0), "output.speed", positive=True),
+            dpi=self.number(t.get("dpi", 80), "output.dpi", positive=True),
+        )
+
+
+def _join(key: str, name: str) -> str:
+    return f"{key}.{name}" if key else name
+
+
+def _is_float(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
