@@ -9,7 +9,7 @@ orchestrates. Public API::
 from importlib.metadata import PackageNotFoundError, version as _version
 
 from ._chain import Chain
-from ._simulate import METHODS, Solution, Stats, simulate
+from ._simulate import METHOD_INFO, METHODS, Solution, Stats, simulate
 from ._torque import Sinusoid, Table
 from .errors import InputError, IntegrationError
 
@@ -19,7 +19,7 @@ except PackageNotFoundError:  # pragma: no cover - running from a source tree wi
     __version__ = "0.0.0"
 
 __all__ = [
-    "Chain", "simulate", "Solution", "Stats", "METHODS", "Sinusoid", "Table",
+    "Chain", "simulate", "Solution", "Stats", "METHODS", "METHOD_INFO", "Sinusoid", "Table",
     "InputError", "IntegrationError", "__version__",
 ]
 

@@ -12,6 +12,8 @@ from ._torque import normalise_torque
 from .errors import InputError
 
 METHODS = tuple(_core.METHODS)
+#: Per method: declared ``order``, ``symplectic``, ``adaptive``, ``implicit`` (from the core).
+METHOD_INFO = {name: dict(info) for name, info in _core.METHOD_INFO.items()}
 
 
 @dataclass(frozen=True)

@@ -200,6 +200,20 @@ def _report(progress, done: int, total: int) -> None:
         progress(done / total)
 
 
+def _exact_palette(palette):
+    """Median cut averages colours, and Pillow maps pixels to a given palette through a coarse
+    cache, so the white background could come out grey: snap near-white (and near-black)
+    entries to pure white (black)."""
+    colors = np.array(palette.getpalette()[: 3 * 256], dtype=int).reshape(-1, 3)
+    colors[(colors >= 246).all(axis=1)] = 255
+    colors[(colors <= 9).all(axis=1)] = 0
+    from PIL import Image
+
+    fresh = Image.new("P", (1, 1))  # quantize(palette=...) reads a palette image's own palette
+    fresh.putpalette(colors.astype(np.uint8).ravel().tolist())
+    return fresh
+
+
 def _write_gif(path: Path, frames, count: int, fps: float, progress) -> None:
     from PIL import Image
 
@@ -214,7 +228,7 @@ def _write_gif(path: Path, frames, count: int, fps: float, progress) -> None:
             fade = np.round(255 * (1 - alpha + alpha * _TRAIL[None, :])).astype(np.uint8)
             swatch = np.repeat(np.repeat(fade[:, None, :], frame.shape[1], axis=1), 2, axis=0)
             sample = np.ascontiguousarray(np.concatenate([frame, swatch], axis=0))
-            palette = Image.fromarray(sample).quantize(colors=255, method=Image.Quantize.MEDIANCUT)
+            palette = _exact_palette(Image.fromarray(sample).quantize(colors=255, method=Image.Quantize.MEDIANCUT))
         images.append(image.quantize(palette=palette, dither=Image.Dither.NONE))
         _report(progress, k + 1, count)
     # GIF delays are in hundredths of a second: spread the rounding so playback stays real-time.

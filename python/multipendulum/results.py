@@ -37,7 +37,7 @@ _FORMAT_NAME = "multipendulum-results"
 _FORMAT_VERSION = 1
 _SERIES = ("t", "theta", "omega", "p", "energy", "work", "energy_error", "positions")
 _CHAIN_ARRAYS = ("lengths", "masses", "com", "inertia")
-_STATS = ("steps", "rejected", "evaluations", "energy_error", "wall_time")
+_STATS = ("steps", "rejected", "evaluations", "iterations", "energy_error", "wall_time")
 
 
 class Results:
@@ -59,7 +59,7 @@ class Results:
         self.masses = arrays["masses"]
         self.com = arrays["com"]
         self.inertia = arrays["inertia"]
-        self.g = float(arrays["g"])
+        self.g = float(np.asarray(arrays["g"]).reshape(()))
         self.metadata = metadata
         self.path = path
         self._chain = None
@@ -366,9 +366,9 @@ def _load_csv(path: Path) -> Results:
         "t": parts[0][:, 0], "theta": parts[1], "omega": parts[2], "p": parts[3],
         "energy": parts[4][:, 0], "work": parts[5][:, 0], "energy_error": parts[6][:, 0],
         "positions": parts[7].reshape(t_count, n, 2),
-        "g": np.asarray(chain["g"], dtype=np.float64),
     }
     arrays = {k: np.ascontiguousarray(v, dtype=np.float64) for k, v in arrays.items()}
+    arrays["g"] = np.asarray(chain["g"], dtype=np.float64)
     for k in _CHAIN_ARRAYS:
         arrays[k] = np.asarray(chain[k], dtype=np.float64)
     return Results(arrays, metadata, path)

@@ -552,5 +552,15 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("InputError", m.py().get_type::<InputError>())?;
     m.add("IntegrationError", m.py().get_type::<IntegrationError>())?;
     m.add("METHODS", Method::ALL.iter().map(|m| m.name()).collect::<Vec<_>>())?;
+    let info = pyo3::types::PyDict::new(m.py());
+    for method in Method::ALL {
+        let d = pyo3::types::PyDict::new(m.py());
+        d.set_item("order", method.order())?;
+        d.set_item("symplectic", method.symplectic())?;
+        d.set_item("adaptive", method.adaptive())?;
+        d.set_item("implicit", method.symplectic())?;
+        info.set_item(method.name(), d)?;
+    }
+    m.add("METHOD_INFO", info)?;
     Ok(())
 }

@@ -1,0 +1,161 @@
+"""Animations and plots: files exist, have the expected frames, are not blank, play in real time,
+and draw the right thing (pivot fixed, rods connected, energy on a log scale)."""
+import os
+
+import numpy as np
+import pytest
+
+import multipendulum as mp
+from multipendulum.animation import _Painter, frame_times
+from multipendulum.results import load_results, save_results, series
+
+pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
+
+
+@pytest.fixture(scope="module")
+def sol():
+    chain = mp.Chain(lengths=[1.0, 1.0], masses=[1.0, 2.0])
+    return mp.simulate(chain, [2.0, 2.6], [0.0, 0.0], 2.0, t_eval=np.linspace(0, 2.0, 201))
+
+
+def _gif_frames(path):
+    from PIL import Image, ImageSequence
+
+    with Image.open(path) as im:
+        frames = [np.asarray(f.convert("RGB")) for f in ImageSequence.Iterator(im)]
+        durations = [f.info["duration"] for f in ImageSequence.Iterator(im)]
+    return np.stack(frames), durations
+
+
+def _assert_not_blank(frames):
+    # Each frame has content, and the frames differ from one another (the pendulum moves).
+    assert all(f.std() > 10 for f in frames)
+    assert frames.astype(float).var(axis=0).mean() > 1.0
+
+
+def test_frame_times_are_real_time():
+    t = frame_times(0.0, 2.0, fps=30, speed=1.0)
+    assert len(t) == 61 and t[-1] == pytest.approx(2.0)
+    assert len(frame_times(0.0, 2.0, fps=10, speed=2.0)) == 11
+    assert len(frame_times(0.0, 1.99, fps=10, speed=1.0)) == 20
+
+
+def test_gif(tmp_path, sol):
+    path = mp.animate(sol, tmp_path / "a.gif", fps=20, dpi=40)
+    frames, durations = _gif_frames(path)
+    assert len(frames) == len(frame_times(0.0, 2.0, 20, 1.0)) == 41
+    assert frames.shape[1:] == (192, 192, 3)  # 5 in at 40 dpi, rounded to a multiple of 16
+    _assert_not_blank(frames)
+    assert sum(durations) == pytest.approx(1000 * len(frames) / 20, abs=10)  # real-time playback
+    assert (frames[:, 2, 2] == 255).all()  # a white background, not grey
+    assert os.listdir(tmp_path) == ["a.gif"]
+
+
+def test_gif_durations_stay_real_time_when_fps_does_not_divide(tmp_path, sol):
+    _, durations = _gif_frames(mp.animate(sol, tmp_path / "a.gif", fps=30, dpi=30, speed=2.0))
+    assert len(durations) == 31
+    assert set(durations) <= {30, 40}
+    assert sum(durations) == pytest.approx(1000 * 31 / 30, abs=10)
+
+
+def test_mp4(tmp_path, sol):
+    import imageio_ffmpeg
+
+    path = mp.animate(sol, tmp_path / "a.mp4", fps=15, dpi=40)
+    count, seconds = imageio_ffmpeg.count_frames_and_secs(str(path))
+    assert count == len(frame_times(0.0, 2.0, 15, 1.0)) == 31
+    assert seconds == pytest.approx(31 / 15, abs=0.1)
+    reader = imageio_ffmpeg.read_frames(str(path))
+    meta = reader.__next__()
+    w, h = meta["size"]
+    frames = np.stack([np.frombuffer(f, np.uint8).reshape(h, w, 3) for f in reader])
+    assert len(frames) == 31
+    _assert_not_blank(frames)
+
+
+def test_animate_results_file_and_speed(tmp_path, sol):
+    results = load_results(save_results(sol, tmp_path / "r.npz"))
+    frames, _ = _gif_frames(mp.animate(results, tmp_path / "b.gif", fps=10, speed=0.5, trail=0, dpi=30))
+    assert len(frames) == 41  # 2 s at half speed, 10 frames per second of playback
+    _assert_not_blank(frames)
+
+
+def test_bad_animation_arguments_write_nothing(tmp_path, sol):
+    with pytest.raises(mp.InputError, match=r"must end in \.gif or \.mp4"):
+        mp.animate(sol, tmp_path / "a.avi")
+    with pytest.raises(mp.InputError, match="fps must be > 0"):
+        mp.animate(sol, tmp_path / "a.gif", fps=0)
+    with pytest.raises(mp.InputError, match="trail must be >= 0"):
+        mp.animate(sol, tmp_path / "a.gif", trail=-1)
+    assert os.listdir(tmp_path) == []
+
+
+def _pixel(painter, xy):
+    """Data coordinates -> (row, col) in the frame array."""
+    x, y = painter.ax.transData.transform(xy)
+    return int(round(painter.pixels - y)), int(round(x))
+
+
+def _dark(frame, row, col, radius=1):
+    patch = frame[max(row - radius, 0): row + radius + 1, max(col - radius, 0): col + radius + 1]
+    return patch.min() < 90
+
+
+@pytest.mark.parametrize("masses", [[1.0, 2.0], [1.0, 1.0, 1.0, 1.0, 1.0]])
+def test_pivot_fixed_and_rods_connected(masses):
+    n = len(masses)
+    chain = mp.Chain(lengths=[1.0] * n, masses=masses)
+    sol = mp.simulate(chain, np.linspace(2.0, 2.6, n), np.zeros(n), 3.0, t_eval=np.linspace(0, 3.0, 301))
+    view = series(sol)
+    painter = _Painter(view, dpi=60, size=5.0, title=None, speed=1.0)
+    times = frame_times(0.0, 3.0, 5, 1.0)
+    joints = chain.positions(np.array([np.interp(times, sol.t, sol.theta[:, i]) for i in range(n)]).T)
+    for k, t in enumerate(times):
+        frame = painter.frame(k, t, joints[k], trail=1.0)
+        assert _dark(frame, *_pixel(painter, (0.0, 0.0))), f"pivot not drawn at the origin at t = {t}"
+        chain_xy = np.vstack([[0.0, 0.0], joints[k]])
+        for i in range(n):
+            a, b = chain_xy[i], chain_xy[i + 1]
+            for s in np.linspace(0.0, 1.0, 9):  # every point along each rod is drawn
+                assert _dark(frame, *_pixel(painter, a + s * (b - a))), f"rod {i + 1} broken at t = {t}"
+        # And far from the chain the picture is background.
+        far = -np.sign(joints[k][-1]) * 0.9 * n
+        row, col = _pixel(painter, far)
+        assert frame[row, col].min() > 200
+
+
+def test_bob_sizes_follow_mass(sol):
+    painter = _Painter(series(sol), dpi=80, size=5.0, title=None, speed=1.0)
+    assert painter.bob_sizes[1] == pytest.approx(2 * painter.bob_sizes[0])  # area proportional to mass
+
+
+def test_plots_written(tmp_path, sol):
+    paths = mp.plot(sol, tmp_path)
+    assert [p.name for p in paths] == ["angles.png", "energy.png", "phase.png", "tip.png"]
+    from PIL import Image
+
+    for p in paths:
+        with Image.open(p) as im:
+            assert im.size[0] > 300 and np.asarray(im.convert("L")).std() > 5
+    assert sorted(os.listdir(tmp_path)) == sorted(p.name for p in paths)
+
+
+def test_plot_figures_and_log_energy(sol):
+    import matplotlib.pyplot as plt
+
+    figs = mp.plot(sol, kinds=("energy", "phase"))
+    try:
+        energy, phase = figs
+        assert energy.axes[0].get_yscale() == "log"
+        assert len(phase.axes) == 2  # first and last link
+        lines = energy.axes[0].get_lines()
+        assert lines and np.all(lines[0].get_ydata() > 0)
+    finally:
+        for f in figs:
+            plt.close(f)
+
+
+def test_plot_rejects_unknown_kind(tmp_path, sol):
+    with pytest.raises(mp.InputError, match="unknown plot kind 'energie'"):
+        mp.plot(sol, tmp_path, kinds=("energie",))
+    assert os.listdir(tmp_path) == []

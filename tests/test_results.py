@@ -1,0 +1,169 @@
+"""Results files: round trips (NPZ and CSV give back the same arrays, bit for bit), metadata that
+reproduces the run, and atomic writes (an error while writing leaves no file and no debris)."""
+import json
+import os
+
+import numpy as np
+import pytest
+
+import multipendulum as mp
+from multipendulum.results import Results, load_results, save_results
+from multipendulum.scenario import loads_scenario
+
+SCENARIO = """
+name = "round trip"
+[chain]
+lengths = [1.0, 0.7, 0.5]
+masses = [1.0, 2.0, 0.5]
+com = [0.6, 0.35, 0.5]
+inertia = [0.01, 0.02, 0.0]
+[initial]
+unit = "radians"
+theta = [1.0, -0.5, 2.0]
+omega = [0.0, 0.3, 0.0]
+[simulation]
+t_end = 1.0
+sample_dt = 0.05
+[torque]
+kind = "table"
+convention = "generalized"
+file = "u.csv"
+"""
+TABLE = "t,u1,u2,u3\n0,0.5,0,-0.1\n0.5,1.0,0.2,0\n1,0,0,0.3\n"
+ARRAYS = ("t", "theta", "omega", "p", "energy", "work", "energy_error", "positions")
+
+
+@pytest.fixture(scope="module")
+def run():
+    scenario = loads_scenario(SCENARIO, files={"u.csv": TABLE})
+    return scenario, scenario.run()
+
+
+def _assert_same(results, sol):
+    for name in ARRAYS:
+        got, want = getattr(results, name), np.asarray(getattr(sol, name))
+        assert got.dtype == np.float64 and got.shape == want.shape, name
+        np.testing.assert_array_equal(got, want, err_msg=name)
+    for name in ("lengths", "masses", "com", "inertia"):
+        np.testing.assert_array_equal(getattr(results, name), np.asarray(getattr(sol.chain, name)), err_msg=name)
+    assert results.g == sol.chain.g
+
+
+@pytest.mark.parametrize("fmt", ["npz", "csv"])
+def test_round_trip_gives_the_same_arrays(tmp_path, run, fmt):
+    scenario, sol = run
+    path = save_results(sol, tmp_path / f"r.{fmt}", scenario=scenario)
+    results = load_results(path)
+    assert isinstance(results, Results)
+    _assert_same(results, sol)
+    meta = results.metadata
+    assert meta["version"] == mp.__version__
+    assert meta["method"] == sol.method == results.method
+    assert meta["stats"]["steps"] == sol.stats.steps
+    assert meta["stats"]["energy_error"] == sol.stats.energy_error
+    assert meta["scenario"]["text"] == SCENARIO
+    assert meta["scenario"]["files"] == {"u.csv": TABLE}
+    assert results.stats.steps == sol.stats.steps
+
+
+def test_format_follows_suffix_or_argument(tmp_path, run):
+    _, sol = run
+    save_results(sol, tmp_path / "a.csv")
+    assert (tmp_path / "a.csv").read_text().startswith("# multipendulum-results")
+    save_results(sol, tmp_path / "b.dat", format="npz")
+    assert (tmp_path / "b.dat").read_bytes()[:2] == b"PK"
+    _assert_same(load_results(tmp_path / "b.dat"), sol)
+    with pytest.raises(mp.InputError, match="format must be one of npz, csv"):
+        save_results(sol, tmp_path / "c.npz", format="hdf5")
+    assert not (tmp_path / "c.npz").exists()
+
+
+def test_loaded_results_save_again_unchanged(tmp_path, run):
+    scenario, sol = run
+    first = load_results(save_results(sol, tmp_path / "1.npz", scenario=scenario))
+    second = load_results(save_results(first, tmp_path / "2.csv"))
+    _assert_same(second, sol)
+    assert second.metadata["scenario"] == first.metadata["scenario"]
+
+
+def test_stored_scenario_reproduces_the_run(tmp_path, run):
+    scenario, sol = run
+    results = load_results(save_results(sol, tmp_path / "r.npz", scenario=scenario))
+    again = results.scenario().run()
+    for name in ("t", "theta", "omega", "energy", "work"):
+        np.testing.assert_array_equal(getattr(again, name), getattr(sol, name), err_msg=name)
+
+
+def test_overrides_are_recorded(tmp_path, run):
+    scenario, _ = run
+    short = scenario.replace(t_end=0.25)
+    results = load_results(save_results(short.run(), tmp_path / "r.npz", scenario=short))
+    assert results.metadata["scenario"]["overrides"] == {"t_end": 0.25}
+    assert results.scenario().t_end == 0.25
+    assert results.t[-1] == 0.25
+
+
+def test_results_plain_solution_has_no_scenario(tmp_path):
+    chain = mp.Chain(lengths=[1.0], masses=[1.0])
+    sol = mp.simulate(chain, [0.5], [0.0], 0.2)
+    results = load_results(save_results(sol, tmp_path / "r.npz"))
+    assert results.metadata["scenario"] is None and results.scenario() is None
+    assert results.chain == chain
+    np.testing.assert_array_equal(results.positions, sol.positions)
+
+
+class Boom(RuntimeError):
+    pass
+
+
+def test_failed_write_leaves_nothing(tmp_path, run, monkeypatch):
+    _, sol = run
+
+    def broken(f, **arrays):
+        f.write(b"PK half a file")
+        raise Boom()
+
+    monkeypatch.setattr(np, "savez_compressed", broken)
+    with pytest.raises(Boom):
+        save_results(sol, tmp_path / "r.npz")
+    assert os.listdir(tmp_path) == []
+
+
+def test_failed_write_keeps_the_old_file(tmp_path, run, monkeypatch):
+    _, sol = run
+    path = save_results(sol, tmp_path / "r.npz")
+    before = path.read_bytes()
+    monkeypatch.setattr(np, "savez_compressed", lambda f, **a: (_ for _ in ()).throw(KeyboardInterrupt()))
+    with pytest.raises(KeyboardInterrupt):
+        save_results(sol, path)
+    assert path.read_bytes() == before
+    assert os.listdir(tmp_path) == ["r.npz"]
+
+
+def test_written_file_has_normal_permissions(tmp_path, run):
+    _, sol = run
+    path = save_results(sol, tmp_path / "r.npz")
+    mask = os.umask(0)
+    os.umask(mask)
+    assert path.stat().st_mode & 0o777 == 0o666 & ~mask
+
+
+def test_not_a_results_file(tmp_path):
+    other = tmp_path / "other.npz"
+    np.savez(other, x=np.arange(3))
+    with pytest.raises(mp.InputError, match="not a multipendulum results file: missing metadata"):
+        load_results(other)
+    text = tmp_path / "other.csv"
+    text.write_text("a,b\n1,2\n")
+    with pytest.raises(mp.InputError, match="not a multipendulum results file"):
+        load_results(text)
+
+
+def test_npz_metadata_is_plain_json(tmp_path, run):
+    scenario, sol = run
+    path = save_results(sol, tmp_path / "r.npz", scenario=scenario)
+    with np.load(path, allow_pickle=False) as data:
+        meta = json.loads(str(data["metadata"]))
+        assert set(ARRAYS) <= set(data.files)
+        assert data["positions"].shape == (len(sol.t), 3, 2)
+    assert meta["format"] == "multipendulum-results" and meta["format_version"] == 1

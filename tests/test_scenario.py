@@ -1,0 +1,231 @@
+"""Scenario files: every example loads and runs; every kind of bad file is refused with a message
+naming the key, the value and what was expected."""
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import multipendulum as mp
+from multipendulum.scenario import ScenarioError, default_scenario_path, load_scenario, loads_scenario
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLES = sorted((ROOT / "examples").glob("*.toml"))
+
+GOOD = """
+name = "test"
+[chain]
+lengths = [1.0, 1.0, 1.0]
+masses = [1.0, 1.0, 1.0]
+[initial]
+unit = "degrees"
+theta = [90.0, 45.0, 0.0]
+[simulation]
+t_end = 0.5
+"""
+
+
+def test_examples_are_there():
+    names = {p.stem for p in EXAMPLES}
+    assert {"seed000_driven_chain", "seed001_compound_double", "triple", "chain50", "driven_rod"} <= names
+
+
+@pytest.mark.parametrize("path", EXAMPLES + [default_scenario_path()], ids=lambda p: p.stem)
+def test_example_loads_and_runs(path):
+    scenario = load_scenario(path)
+    chain = scenario.build_chain()
+    assert chain.n == scenario.n == len(scenario.theta0) == len(scenario.omega0)
+    short = scenario.replace(t_end=0.05)
+    sol = short.run()
+    assert sol.t[0] == 0.0 and sol.t[-1] == pytest.approx(0.05)
+    assert np.all(np.isfinite(sol.theta))
+    assert short.overrides == {"t_end": 0.05}
+
+
+def test_examples_say_what_they_are():
+    by_name = {p.stem: load_scenario(p) for p in EXAMPLES}
+    seed000 = by_name["seed000_driven_chain"]
+    assert seed000.chain["kind"] == "points" and "com" not in seed000.chain
+    assert seed000.torque.kind == "sinusoid" and seed000.torque.convention == "generalized"
+    seed001 = by_name["seed001_compound_double"]
+    rods = mp.Chain.rods(seed001.chain["lengths"], seed001.chain["masses"])
+    np.testing.assert_allclose(seed001.build_chain().com, rods.com, rtol=1e-14)
+    np.testing.assert_allclose(seed001.build_chain().inertia, rods.inertia, rtol=1e-14)
+    assert seed001.method == "rk4" and seed001.dt == 0.001
+    assert by_name["triple"].n == 3
+    chain50 = by_name["chain50"]
+    assert chain50.n == 50
+    np.testing.assert_allclose(chain50.theta0[[0, -1]], np.radians([120.0, 30.0]))
+    assert np.all(np.diff(chain50.theta0) < 0)  # a curve, not a straight line
+    rod = by_name["driven_rod"]
+    assert rod.chain["kind"] == "rods" and rod.torque.kind == "table" and rod.torque.convention == "joint"
+    assert rod.files["driven_rod.csv"].startswith("#")
+
+
+def test_degrees_and_radians_mean_the_same_run():
+    deg = loads_scenario(GOOD)
+    rad = loads_scenario(GOOD.replace('"degrees"', '"radians"').replace("[90.0, 45.0, 0.0]",
+                                                                        f"[{math.pi / 2!r}, {math.pi / 4!r}, 0.0]"))
+    np.testing.assert_allclose(deg.theta0, [math.pi / 2, math.pi / 4, 0.0], rtol=1e-15)
+    np.testing.assert_allclose(rad.theta0, deg.theta0, rtol=1e-15)
+
+
+def test_run_is_simulate_with_the_scenario_arguments():
+    text = GOOD + """
+[torque]
+kind = "sinusoid"
+convention = "joint"
+amplitude = [0.5, 0.0, 0.2]
+frequency = 2.0
+"""
+    scenario = loads_scenario(text)
+    sol = scenario.run()
+    chain = mp.Chain(lengths=[1, 1, 1], masses=[1, 1, 1])
+    ref = mp.simulate(chain, np.radians([90.0, 45.0, 0.0]), [0, 0, 0], 0.5, t_eval=np.linspace(0, 0.5, 51),
+                      joint_torque=mp.Sinusoid([0.5, 0.0, 0.2], [2.0, 2.0, 2.0]))
+    np.testing.assert_array_equal(sol.t, ref.t)
+    np.testing.assert_array_equal(sol.theta, ref.theta)
+    np.testing.assert_array_equal(sol.work, ref.work)
+
+
+def test_torque_kinds_and_conventions():
+    const = loads_scenario(GOOD + '[torque]\nkind = "constant"\nconvention = "generalized"\nvalue = 0.25\n')
+    kwargs = const.build_torque()
+    assert list(kwargs) == ["torque"]
+    np.testing.assert_array_equal(kwargs["torque"], [0.25, 0.25, 0.25])
+    sin = loads_scenario(GOOD + '[torque]\nkind = "sinusoid"\nconvention = "joint"\namplitude = 1\nfrequency = 2\n')
+    assert isinstance(sin.build_torque()["joint_torque"], mp.Sinusoid)
+    table = loads_scenario(
+        GOOD + '[torque]\nkind = "table"\nconvention = "generalized"\nfile = "u.csv"\n',
+        files={"u.csv": "t,a,b,c\n0,1,2,3\n1,4,5,6\n"},
+    )
+    torque = table.build_torque()["torque"]
+    assert isinstance(torque, mp.Table)
+    np.testing.assert_array_equal(np.asarray(torque.values), [[1, 2, 3], [4, 5, 6]])
+    assert table.files == {"u.csv": "t,a,b,c\n0,1,2,3\n1,4,5,6\n"}
+
+
+def test_scenario_error_is_an_input_error():
+    assert issubclass(ScenarioError, mp.InputError) and issubclass(ScenarioError, ValueError)
+
+
+def _edit(old, new, base=GOOD):
+    assert old in base
+    return base.replace(old, new)
+
+
+BAD = [
+    # (what, text, key, message fragment)
+    ("unknown key", _edit("lengths =", "lenghts ="), "chain.lenghts", "unknown key; did you mean 'lengths'?"),
+    ("unknown top", GOOD + "\n[outputs]\nfps = 3\n", "outputs", "did you mean 'output'?"),
+    ("unknown section key", _edit("t_end = 0.5", "t_end = 0.5\nstep = 0.1"), "simulation.step", "unknown key"),
+    ("wrong type", _edit("[1.0, 1.0, 1.0]\nmasses", '"long"\nmasses'), "chain.lengths",
+     "expected a number or an array of numbers (one per link), got a string 'long'"),
+    ("wrong element type", _edit("masses = [1.0, 1.0, 1.0]", 'masses = [1.0, "1", 1.0]'), "chain.masses[1]",
+     "expected a number >= 0, got a string '1'"),
+    ("missing field", _edit("masses = [1.0, 1.0, 1.0]\n", ""), "chain.masses", "missing; expected link masses"),
+    ("missing section", _edit("[simulation]\nt_end = 0.5\n", ""), "simulation", "missing"),
+    ("negative length", _edit("lengths = [1.0, 1.0, 1.0]", "lengths = [1.0, 1.0, -1]"), "chain.lengths[2]",
+     "must be > 0, got -1"),
+    ("zero length", _edit("lengths = [1.0, 1.0, 1.0]", "lengths = [0, 1.0, 1.0]"), "chain.lengths[0]",
+     "must be > 0, got 0"),
+    ("negative mass", _edit("masses = [1.0, 1.0, 1.0]", "masses = [1.0, -2.5, 1.0]"), "chain.masses[1]",
+     "must be >= 0, got -2.5"),
+    ("nan", _edit("masses = [1.0, 1.0, 1.0]", "masses = [1.0, nan, 1.0]"), "chain.masses[1]", "must be finite"),
+    ("count", _edit("masses = [1.0, 1.0, 1.0]", "masses = [1.0, 1.0]"), "chain.masses",
+     "expected 3 values (one per link), got 2"),
+    ("singular", _edit("masses = [1.0, 1.0, 1.0]", "masses = [1.0, 1.0, 0.0]"), "chain", "singular"),
+    ("rods with com", _edit("[chain]", '[chain]\nkind = "rods"\ncom = [0.5, 0.5, 0.5]'), "chain.com",
+     'cannot be given with kind = "rods"'),
+    ("kind", _edit("[chain]", '[chain]\nkind = "rod"'), "chain.kind",
+     'expected one of "points", "rods", got \'rod\' (did you mean "rods"?)'),
+    ("unit missing", _edit('unit = "degrees"\n', ""), "initial.unit", 'missing; expected "degrees" or "radians"'),
+    ("unit", _edit('"degrees"', '"deg"'), "initial.unit", 'got \'deg\' (did you mean "degrees"?)'),
+    ("t_end", _edit("t_end = 0.5", "t_end = -1.0"), "simulation.t_end", "must be > 0, got -1.0"),
+    ("t_end type", _edit("t_end = 0.5", 't_end = "10 s"'), "simulation.t_end", "expected a number > 0, got a string"),
+    ("method", _edit("t_end = 0.5", 't_end = 0.5\nmethod = "rk5"'), "simulation.method",
+     'expected one of "rk4", "dop853", "gauss4", "gauss6", got \'rk5\''),
+    ("fixed step without dt", _edit("t_end = 0.5", 't_end = 0.5\nmethod = "gauss6"'), "simulation.dt",
+     'missing; method "gauss6" takes fixed steps'),
+    ("torque kind", GOOD + '[torque]\nkind = "square"\nconvention = "joint"\n', "torque.kind",
+     'expected one of "constant", "sinusoid", "table"'),
+    ("torque convention", GOOD + '[torque]\nkind = "constant"\nvalue = 1.0\n', "torque.convention",
+     'missing; expected "generalized"'),
+    ("torque key of another kind", GOOD + '[torque]\nkind = "constant"\nconvention = "joint"\nvalue = 1.0\n'
+     "amplitude = 2.0\n", "torque.amplitude", "unknown key"),
+    ("table file", GOOD + '[torque]\nkind = "table"\nconvention = "joint"\nfile = "nowhere.csv"\n', "torque.file",
+     "cannot read"),
+    ("animation suffix", GOOD + '[output]\nanimation = "movie.avi"\n', "output.animation",
+     "expected a file name ending in .gif or .mp4, or false, got 'movie.avi'"),
+    ("plot kind", GOOD + '[output]\nplots = ["angles", "energie"]\n', "output.plots[1]",
+     '(did you mean "energy"?)'),
+    ("ramp key", _edit("theta = [90.0, 45.0, 0.0]", "theta = { from = 1, too = 2 }"), "initial.theta.too",
+     "did you mean 'to'?"),
+]
+
+
+@pytest.mark.parametrize("what,text,key,fragment", BAD, ids=[b[0] for b in BAD])
+def test_bad_scenarios_name_key_value_and_expectation(what, text, key, fragment):
+    with pytest.raises(ScenarioError) as info:
+        loads_scenario(text, base_dir=ROOT)
+    err = info.value
+    assert err.key == key
+    assert str(err).startswith(f"key '{key}': ")
+    assert fragment in str(err)
+
+
+def test_the_seed_style_message():
+    with pytest.raises(ScenarioError, match=r"^key 'chain\.lengths\[2\]': must be > 0, got -1$"):
+        loads_scenario(_edit("lengths = [1.0, 1.0, 1.0]", "lengths = [1, 1, -1]"))
+
+
+def test_table_csv_problems(tmp_path):
+    base = GOOD + '[torque]\nkind = "table"\nconvention = "generalized"\nfile = "u.csv"\n'
+    cases = {
+        "t,a,b\n0,1,2\n1,3,4\n": "line 2: expected 4 columns (t, then one torque per link), got 3",
+        "0,1,2,3\n0,1,2,3\n": "line 2: times must increase",
+        "0,1,2,3\n1,x,2,3\n": "line 2: expected numbers",
+        "0,1,2,3\n": "expected at least 2 rows",
+    }
+    for csv, fragment in cases.items():
+        (tmp_path / "u.csv").write_text(csv)
+        with pytest.raises(ScenarioError, match="key 'torque.file'") as info:
+            loads_scenario(base, base_dir=tmp_path)
+        assert fragment in str(info.value), (csv, str(info.value))
+
+
+def test_unreadable_files_and_bad_toml(tmp_path):
+    with pytest.raises(ScenarioError, match="cannot read scenario file") as info:
+        load_scenario(tmp_path / "missing.toml")
+    assert info.value.key is None and info.value.path == tmp_path / "missing.toml"
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[chain\nlengths = 1\n")
+    with pytest.raises(ScenarioError, match="not valid TOML"):
+        load_scenario(bad)
+
+
+def test_scalars_broadcast_with_n():
+    text = """
+[chain]
+n = 4
+lengths = 0.25
+masses = 0.5
+[initial]
+unit = "radians"
+theta = { from = 0.0, to = 0.3 }
+omega = 0.1
+[simulation]
+t_end = 1.0
+"""
+    s = loads_scenario(text)
+    assert s.chain["lengths"] == [0.25] * 4 and s.chain["masses"] == [0.5] * 4
+    np.testing.assert_allclose(s.theta0, [0.0, 0.1, 0.2, 0.3])
+    np.testing.assert_allclose(s.omega0, [0.1] * 4)
+    with pytest.raises(ScenarioError, match=r"key 'chain\.lengths': expected 4 values"):
+        loads_scenario(text.replace("lengths = 0.25", "lengths = [1.0, 1.0]"))
+
+
+def test_sample_times_end_at_t_end():
+    s = loads_scenario(GOOD.replace("t_end = 0.5", "t_end = 0.123\nsample_dt = 0.05"))
+    t = s.t_eval()
+    assert t[0] == 0.0 and t[-1] == 0.123 and np.all(np.diff(t) <= 0.05 + 1e-15)
