@@ -11,6 +11,7 @@
 //! Hamiltonian form: `theta_dot = A^-1 p`,
 //! `p_dot_a = tau_a - g h_a sin(theta_a) - omega_a sum_b K_ab sin(theta_a - theta_b) omega_b`.
 use crate::model::Chain;
+use crate::trig::sin_cos;
 
 /// Pivots below this fraction of the diagonal mean the mass matrix is numerically singular.
 const PIVOT_TOL: f64 = 1e-14;
@@ -43,8 +44,9 @@ impl Workspace {
 impl Chain {
     #[inline(always)]
     fn trig(&self, theta: &[f64], ws: &mut Workspace) {
-        for ((t, s), c) in theta.iter().zip(&mut ws.sin).zip(&mut ws.cos) {
-            (*s, *c) = t.sin_cos();
+        let n = theta.len();
+        for ((t, s), c) in theta.iter().zip(&mut ws.sin[..n]).zip(&mut ws.cos[..n]) {
+            (*s, *c) = sin_cos(*t);
         }
     }
 
@@ -58,7 +60,7 @@ impl Chain {
         x: &mut [f64],
         mut extra: impl FnMut(usize, f64, f64) -> f64,
     ) -> Result<(), Singular> {
-        let n = self.n();
+        let n = x.len();
         let (l, h, d) = (&self.lengths[..n], &self.h[..n], &self.diag[..n]);
         let (s, c, u, dinv) = (&ws.sin[..n], &ws.cos[..n], &mut ws.u[..n], &mut ws.dinv[..n]);
         let (mut gxx, mut gxy, mut gyy, mut wx, mut wy) = (0.0, 0.0, 0.0, 0.0, 0.0);
@@ -88,7 +90,7 @@ impl Chain {
     /// the prefix sum `P_a = sum_{b<a} l_b n_b x_b` before `x_a` is added to it.
     #[inline(always)]
     fn substitute(&self, ws: &Workspace, x: &mut [f64], mut each: impl FnMut(usize, f64, f64, f64)) {
-        let n = self.n();
+        let n = x.len();
         let (l, s, c, u, dinv) = (&self.lengths[..n], &ws.sin[..n], &ws.cos[..n], &ws.u[..n], &ws.dinv[..n]);
         let (mut px, mut py) = (0.0, 0.0);
         for a in 0..n {
@@ -109,7 +111,45 @@ impl Chain {
         out: &mut [f64],
         ws: &mut Workspace,
     ) -> Result<(), Singular> {
-        let n = self.n();
+        match self.n() {
+            2 => self.accelerations_double(theta, omega, tau, out),
+            _ => self.accelerations_impl(theta, omega, tau, out, ws),
+        }
+    }
+
+    /// The double pendulum, the most common case, solved in closed form: the same `K`, `h` and
+    /// diagonal as the recursion (tests hold the two equal), with `cos`/`sin(theta_1 - theta_2)`
+    /// rebuilt from each angle's own pair so that only two `sincos` calls are made.
+    #[inline(always)]
+    fn accelerations_double(&self, theta: &[f64], omega: &[f64], tau: &[f64], out: &mut [f64]) -> Result<(), Singular> {
+        let (d1, d2, h1, h2, g) = (self.diag[0], self.diag[1], self.h[0], self.h[1], self.g);
+        let k = self.lengths[0] * h2;
+        let ((s1, c1), (s2, c2)) = (sin_cos(theta[0]), sin_cos(theta[1]));
+        let (s12, c12) = (s1 * c2 - c1 * s2, c1 * c2 + s1 * s2);
+        let r1 = tau[0] - g * h1 * s1 - k * s12 * omega[1] * omega[1];
+        let r2 = tau[1] - g * h2 * s2 + k * s12 * omega[0] * omega[0];
+        let kc = k * c12;
+        let det = d1 * d2 - kc * kc;
+        // The recursion's pivot at link 0 is det / d2; same test.
+        if !(det > PIVOT_TOL * d1 * d2) {
+            return Err(Singular(0));
+        }
+        let inv = 1.0 / det;
+        out[0] = (d2 * r1 - kc * r2) * inv;
+        out[1] = (d1 * r2 - kc * r1) * inv;
+        Ok(())
+    }
+
+    #[inline(always)]
+    pub(crate) fn accelerations_impl(
+        &self,
+        theta: &[f64],
+        omega: &[f64],
+        tau: &[f64],
+        out: &mut [f64],
+        ws: &mut Workspace,
+    ) -> Result<(), Singular> {
+        let n = theta.len();
         let (l, h, g) = (&self.lengths[..n], &self.h[..n], self.g);
         let (omega, tau, out) = (&omega[..n], &tau[..n], &mut out[..n]);
         self.trig(theta, ws);
@@ -219,7 +259,7 @@ impl Chain {
     pub fn positions_into(&self, theta: &[f64], out: &mut [f64]) {
         let (mut x, mut y) = (0.0, 0.0);
         for (i, (l, t)) in self.lengths.iter().zip(theta).enumerate() {
-            let (s, c) = t.sin_cos();
+            let (s, c) = sin_cos(*t);
             x += l * s;
             y -= l * c;
             out[2 * i] = x;
@@ -231,7 +271,7 @@ impl Chain {
     pub fn com_positions_into(&self, theta: &[f64], out: &mut [f64]) {
         let (mut x, mut y) = (0.0, 0.0);
         for (i, ((l, c), t)) in self.lengths.iter().zip(&self.com).zip(theta).enumerate() {
-            let (st, ct) = t.sin_cos();
+            let (st, ct) = sin_cos(*t);
             out[2 * i] = x + c * st;
             out[2 * i + 1] = y - c * ct;
             x += l * st;

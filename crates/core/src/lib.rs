@@ -15,6 +15,7 @@ pub mod integrators;
 pub mod simulate;
 pub mod system;
 pub mod torque;
+mod trig;
 
 pub use integrators::Method;
 pub use simulate::{simulate, simulate_batch, Settings, Stats, Trajectory};

@@ -174,6 +174,21 @@ mod tests {
     }
 
     #[test]
+    fn double_pendulum_closed_form_equals_the_recursion() {
+        let mut seed = 11;
+        for k in 0..200 {
+            let chain = random_chain(2, &mut seed, k % 2 == 0);
+            let theta: Vec<f64> = (0..2).map(|_| 12.0 * lcg(&mut seed) - 6.0).collect();
+            let omega: Vec<f64> = (0..2).map(|_| 8.0 * lcg(&mut seed) - 4.0).collect();
+            let tau: Vec<f64> = (0..2).map(|_| lcg(&mut seed) - 0.5).collect();
+            let (mut closed, mut general) = ([0.0; 2], vec![0.0; 2]);
+            chain.accelerations_into(&theta, &omega, &tau, &mut closed, &mut Workspace::new(2)).unwrap();
+            chain.accelerations_impl(&theta, &omega, &tau, &mut general, &mut Workspace::new(2)).unwrap();
+            assert!(max_rel(&closed, &general) < 1e-13, "{closed:?} vs {general:?}");
+        }
+    }
+
+    #[test]
     fn momenta_and_velocities_invert_each_other() {
         let mut seed = 3;
         let n = 25;

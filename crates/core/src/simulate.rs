@@ -174,7 +174,7 @@ fn check_state_finite(t: f64, y: &[f64]) -> Result<()> {
     if y.iter().all(|v| v.is_finite()) {
         Ok(())
     } else {
-        Err(Error::integration(t, "the state became non-finite (the motion blew up; reduce dt or the tolerances)"))
+        Err(Error::integration(t, crate::system::NON_FINITE))
     }
 }
 

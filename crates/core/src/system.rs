@@ -59,6 +59,17 @@ impl<'c, T: TorqueSource> ChainSystem<'c, T> {
     }
 }
 
+/// A failed pivot means either a non-finite state (a blow-up) or a truly singular configuration.
+fn singular(t: f64, y: &[f64], s: crate::dynamics::Singular) -> Error {
+    if y.iter().all(|v| v.is_finite()) {
+        Error::integration(t, s.reason())
+    } else {
+        Error::integration(t, NON_FINITE)
+    }
+}
+
+pub(crate) const NON_FINITE: &str = "the state became non-finite (the motion blew up; reduce dt or the tolerances)";
+
 impl<T: TorqueSource> OdeSystem for ChainSystem<'_, T> {
     fn dim(&self) -> usize {
         2 * self.chain.n() + usize::from(self.torque.active())
@@ -81,7 +92,7 @@ impl<T: TorqueSource> OdeSystem for ChainSystem<'_, T> {
                 d_theta.copy_from_slice(second);
                 chain
                     .accelerations_into(theta, second, tau, d_second, ws)
-                    .map_err(|s| Error::integration(t, s.reason()))?;
+                    .map_err(|s| singular(t, y, s))?;
             }
             Form::Hamiltonian => {
                 chain
@@ -92,7 +103,7 @@ impl<T: TorqueSource> OdeSystem for ChainSystem<'_, T> {
                         out.copy_from_slice(tau);
                         Ok(())
                     })
-                    .map_err(|s| Error::integration(t, s.reason()))??;
+                    .map_err(|s| singular(t, y, s))??;
             }
         }
         if active {
