@@ -61,30 +61,37 @@ AGREE_TOL = 1e-9
 # ----------------------------------------------------------------------------- timing helpers
 
 
-def measure(fn, repeats, min_time):
-    """Median seconds per call of ``fn()`` over ``repeats`` timed batches.
+def measure(fns, repeats, min_time):
+    """Median seconds per call of each ``fns[key]()``, timed round-robin.
 
-    Each batch calls ``fn`` k times, k chosen so one batch lasts about ``min_time`` seconds
-    (one warm-up call first). The garbage collector is off while timing, as in ``timeit``.
-    Returns (median, min, max) seconds per call.
+    Each function gets one warm-up call, then a batch size k so one batch lasts about
+    ``min_time`` seconds. The batches are interleaved (repeat 1 of every function, then repeat
+    2, ...) so that load from other processes or clock changes hit every contender alike. The
+    garbage collector is off while timing, as in ``timeit``.
+    Returns {key: (median, min, max)} in seconds per call.
     """
-    t0 = time.perf_counter()
-    fn()
-    first = time.perf_counter() - t0
-    k = max(1, math.ceil(min_time / max(first, 1e-9)))
-    per_call = []
+    ks = {}
+    for key, fn in fns.items():
+        t0 = time.perf_counter()
+        fn()
+        first = time.perf_counter() - t0
+        ks[key] = max(1, math.ceil(min_time / max(first, 1e-9)))
+    per_call = {key: [] for key in fns}
     gc_was_enabled = gc.isenabled()
     gc.disable()
     try:
         for _ in range(repeats):
-            t0 = time.perf_counter()
-            for _ in range(k):
-                fn()
-            per_call.append((time.perf_counter() - t0) / k)
+            for key, fn in fns.items():
+                k = ks[key]
+                t0 = time.perf_counter()
+                for _ in range(k):
+                    fn()
+                per_call[key].append((time.perf_counter() - t0) / k)
     finally:
         if gc_was_enabled:
             gc.enable()
-    return float(np.median(per_call)), float(min(per_call)), float(max(per_call))
+    return {key: (float(np.median(v)), float(min(v)), float(max(v)))
+            for key, v in per_call.items()}
 
 
 def fmt_time(seconds):
@@ -183,10 +190,6 @@ def bench_rk4(mp, quick, repeats):
     t_end = steps * dt
     res = {"dt": dt, "steps": steps, "t_end": t_end}
 
-    c = run_c(steps, dt, repeats)
-    res["c_ns"] = c["ns_per_step"]
-    res["c_final"] = c["final"]
-
     chain = mp.Chain(lengths=[L1, L2], masses=[M1, M2], g=G)
     theta0 = np.array(THETA0)
     omega0 = np.array(OMEGA0)
@@ -194,6 +197,8 @@ def bench_rk4(mp, quick, repeats):
     def run():
         return mp.simulate(chain, theta0, omega0, t_end, method="rk4", dt=dt, t_eval=[t_end])
 
+    c = run_c(steps, dt, 1)
+    res["c_final"] = c["final"]
     sol = run()
     final = np.concatenate([np.asarray(sol.theta)[-1], np.asarray(sol.omega)[-1]])
     res["mp_final"] = final.tolist()
@@ -203,9 +208,19 @@ def bench_rk4(mp, quick, repeats):
     res["agree"] = res["diff"] <= AGREE_TOL and res["mp_steps"] == steps
     if not res["agree"]:
         return res
-    med, lo, hi = measure(run, repeats, min_time=0.0)
-    res["mp_ns"] = med / steps * 1e9
-    res["mp_ns_range"] = (lo / steps * 1e9, hi / steps * 1e9)
+
+    # Alternate the two contenders, one C process (its loop timed inside) and one simulate call
+    # per repeat, so background load hits both alike.
+    c_ns, mp_ns = [], []
+    for _ in range(repeats):
+        c_ns.append(run_c(steps, dt, 1)["ns_per_step"])
+        t0 = time.perf_counter()
+        run()
+        mp_ns.append((time.perf_counter() - t0) / steps * 1e9)
+    res["c_ns"] = float(np.median(c_ns))
+    res["c_ns_range"] = (min(c_ns), max(c_ns))
+    res["mp_ns"] = float(np.median(mp_ns))
+    res["mp_ns_range"] = (min(mp_ns), max(mp_ns))
     res["ratio"] = res["mp_ns"] / res["c_ns"]
 
     core = getattr(mp, "_core", None)
@@ -217,18 +232,16 @@ def bench_rk4(mp, quick, repeats):
 
 
 def bench_accelerations(mp, quick, repeats):
-    min_time = 0.02 if quick else 0.1
+    min_time = 0.02 if quick else 0.05
     rng = np.random.default_rng(12345)
-    rows = []
-    sizes = [1, 10, 100, 1000, 10000]
-    for n in sizes:
+    rows, fns = [], {}
+    for n in (1, 10, 100, 1000, 10000):
         chain = mp.Chain(lengths=np.ones(n), masses=np.ones(n), g=G)
         theta = np.ascontiguousarray(rng.uniform(-0.5, 0.5, n))
         omega = np.ascontiguousarray(rng.uniform(-1.0, 1.0, n))
         acc = chain.accelerations
         row = {"n": n}
-        row["rec"], row["rec_lo"], row["rec_hi"] = measure(lambda: acc(theta, omega), repeats,
-                                                           min_time)
+        fns[("rec", n)] = lambda acc=acc, theta=theta, omega=omega: acc(theta, omega)
         if 10 <= n <= 1000:
             try:
                 a_rec = np.asarray(acc(theta, omega, algorithm="recursive"))
@@ -239,9 +252,17 @@ def bench_accelerations(mp, quick, repeats):
                 scale = max(1.0, float(np.max(np.abs(a_rec))))
                 row["chol_diff"] = float(np.max(np.abs(a_rec - a_chol))) / scale
                 if row["chol_diff"] <= 1e-8:
-                    row["chol"] = measure(lambda: acc(theta, omega, algorithm="cholesky"),
-                                          repeats, min(min_time, 0.02))[0]
+                    fns[("chol", n)] = (lambda acc=acc, theta=theta, omega=omega:
+                                        acc(theta, omega, algorithm="cholesky"))
         rows.append(row)
+    # More repeats than elsewhere: the small sizes differ from the N = 1 overhead by well under
+    # a microsecond, so their medians need to be tight for the fit to mean anything.
+    times = measure(fns, max(repeats, 15), min_time)
+    for row in rows:
+        n = row["n"]
+        row["rec"], row["rec_lo"], row["rec_hi"] = times[("rec", n)]
+        if ("chol", n) in times:
+            row["chol"] = times[("chol", n)][0]
 
     overhead = rows[0]["rec"]
     ns = np.array([r["n"] for r in rows[1:]], dtype=float)
@@ -306,44 +327,51 @@ def bench_dop853(mp, quick, repeats):
     spread = max(float(np.max(np.abs(a - b))) for a in stack for b in stack)
     res = {"t_end": t_end, "refs": {k: v.tolist() for k, v in refs.items()}, "ref": ref.tolist(),
            "spread": spread, "agree": spread <= AGREE_TOL}
-    res["rhs_call"] = measure(lambda: numpy_rhs(0.0, y0), repeats, 0.02)[0]
+    res["rhs_call"] = measure({"rhs": lambda: numpy_rhs(0.0, y0)}, repeats, 0.02)["rhs"][0]
     if not res["agree"]:
         return res
 
     exps = [6, 8, 10, 12] if quick else [5, 5.5, 6, 6.5, 7, 7.5, 8, 8.5, 9, 9.5, 10, 10.5, 11,
                                          11.5, 12]
-    min_time = 0.0 if quick else 0.05
-    scans = {}
-    for name, runner in (("scipy", run_scipy), ("mp", run_mp)):
-        rows = []
-        for e in exps:
-            rtol = 10.0**-e
+    runners = {"scipy": run_scipy, "mp": run_mp}
+    scans = {name: [] for name in runners}
+    fns = {}
+    for e in exps:
+        rtol = 10.0**-e
+        for name, runner in runners.items():
             final, nfev = runner(rtol)
-            err = float(np.max(np.abs(final - ref)))
-            t = measure(lambda: runner(rtol), repeats, min_time)[0]
-            rows.append({"rtol": rtol, "err": err, "time": t, "nfev": nfev})
-        scans[name] = rows
+            scans[name].append({"rtol": rtol, "err": float(np.max(np.abs(final - ref))),
+                                "nfev": nfev})
+            fns[(name, rtol)] = lambda runner=runner, rtol=rtol: runner(rtol)
+    # All runs of both libraries interleaved, so load from elsewhere falls on both alike.
+    times = measure(fns, repeats, 0.0 if quick else 0.03)
+    for name, rows in scans.items():
+        for row in rows:
+            row["time"] = times[(name, row["rtol"])][0]
     res["scans"] = scans
 
-    # Equal error: interpolate log(time) against log(error), using only errors well above the
-    # references' own disagreement.
+    # Equal error: the final error is not monotone in the tolerance (it oscillates with the
+    # phase of the error at t = 100), so fit log(time) = a + b log(error) by least squares for
+    # each library, over errors well above the references' own disagreement, and compare the
+    # fitted times at each decade of error both scans cover.
     floor = 10.0 * max(spread, 1e-15)
-
-    def curve(rows):
-        pts = sorted((r["err"], r["time"]) for r in rows if r["err"] > floor)
-        return np.log10([p[0] for p in pts]), np.log10([p[1] for p in pts])
-
-    xs, ys = curve(scans["scipy"])
-    xm, ym = curve(scans["mp"])
+    fits = {}
+    for name, rows in scans.items():
+        pts = [(math.log10(r["err"]), math.log10(r["time"])) for r in rows if r["err"] > floor]
+        if len(pts) >= 2:
+            x, y = np.array(pts).T
+            fits[name] = (np.polyfit(x, y, 1), x.min(), x.max())
+    res["fits"] = {k: v[0].tolist() for k, v in fits.items()}
     compared = []
-    if len(xs) >= 2 and len(xm) >= 2:
-        lo, hi = max(xs[0], xm[0]), min(xs[-1], xm[-1])
+    if len(fits) == 2:
+        lo = max(f[1] for f in fits.values())
+        hi = min(f[2] for f in fits.values())
         targets = [float(k) for k in range(math.ceil(lo), math.floor(hi) + 1)]
         if not targets and lo <= hi:
             targets = [0.5 * (lo + hi)]
         for x in targets:
-            t_s = 10.0 ** np.interp(x, xs, ys)
-            t_m = 10.0 ** np.interp(x, xm, ym)
+            t_s = 10.0 ** np.polyval(fits["scipy"][0], x)
+            t_m = 10.0 ** np.polyval(fits["mp"][0], x)
             compared.append({"err": 10.0**x, "scipy": t_s, "mp": t_m, "ratio": t_s / t_m})
     res["compared"] = compared
     return res
@@ -359,8 +387,9 @@ def render(info, args, c_cmd, versions, rk4, acc_rows, acc_fit, dop, elapsed, bu
     L.append("")
     L.append(f"Generated by `bench/bench_engine.py` ({mode} run, {elapsed:.0f} s) on "
              f"{datetime.datetime.now().astimezone().isoformat(timespec='seconds')}. "
-             "Speeds are ratios against a peer timed in the same run; every time is the median "
-             f"of {args.repeats} repeats.")
+             "Speeds are ratios against a peer timed in the same run, the two timed in "
+             "alternation so background load falls on both; every time is the median of "
+             f"{args.repeats} repeats ({max(args.repeats, 15)} for the accelerations).")
     L.append("")
     if busy:
         L.append("> **Warning:** compiler processes were running during the run; the numbers "
@@ -418,8 +447,9 @@ def render(info, args, c_cmd, versions, rk4, acc_rows, acc_fit, dop, elapsed, bu
              f"(t_end = {rk4['t_end']:g} s). multipendulum: wall time of "
              "`mp.simulate(chain, theta0, omega0, t_end, method=\"rk4\", dt=dt, t_eval=[t_end])`"
              " divided by the step count, nothing subtracted. C: `bench/c/double_pendulum.c`, "
-             "closed-form accelerations (one sin/cos of theta1 - theta2 per evaluation), only the "
-             "step loop timed with `clock_gettime(CLOCK_MONOTONIC)`.")
+             "closed-form accelerations (one sincos of theta1 - theta2 and one sin of each angle per "
+             "evaluation), one process per repeat, only its step loop timed with "
+             "`clock_gettime(CLOCK_MONOTONIC)` (so process start-up is not charged to C).")
     L.append("")
     L.append(f"- steps taken by multipendulum: {rk4['mp_steps']} (expected {rk4['steps']}); "
              f"last time {rk4['mp_t_last']!r}")
@@ -429,7 +459,8 @@ def render(info, args, c_cmd, versions, rk4, acc_rows, acc_fit, dop, elapsed, bu
     if rk4.get("agree"):
         lo, hi = rk4["mp_ns_range"]
         L.append(f"- multipendulum per step: median {rk4['mp_ns']:.2f} ns "
-                 f"(range {lo:.2f}–{hi:.2f}); C: median {rk4['c_ns']:.2f} ns; per evaluation "
+                 f"(range {lo:.2f}–{hi:.2f}); C: median {rk4['c_ns']:.2f} ns (range "
+                 f"{rk4['c_ns_range'][0]:.2f}–{rk4['c_ns_range'][1]:.2f}); per evaluation "
                  f"(4 per step): {rk4['mp_ns'] / 4:.1f} ns against {rk4['c_ns'] / 4:.1f} ns")
         if rk4["hooks"]:
             L.append(f"- lower-level benchmark hooks found in `multipendulum._core` (not timed "
@@ -494,11 +525,12 @@ def render(info, args, c_cmd, versions, rk4, acc_rows, acc_fit, dop, elapsed, bu
     L.append("")
     if dop.get("scans"):
         L.append("| rtol = atol | SciPy error | SciPy time | SciPy nfev | multipendulum error | "
-                 "multipendulum time | multipendulum evaluations |")
-        L.append("|---|---|---|---|---|---|---|")
+                 "multipendulum time | multipendulum evaluations | SciPy / multipendulum time |")
+        L.append("|---|---|---|---|---|---|---|---|")
         for s, m in zip(dop["scans"]["scipy"], dop["scans"]["mp"]):
             L.append(f"| {s['rtol']:.1e} | {s['err']:.2e} | {fmt_time(s['time'])} | {s['nfev']} "
-                     f"| {m['err']:.2e} | {fmt_time(m['time'])} | {m['nfev']} |")
+                     f"| {m['err']:.2e} | {fmt_time(m['time'])} | {m['nfev']} | "
+                     f"{s['time'] / m['time']:.3g}x |")
         L.append("")
         sp_eval = float(np.median([r["time"] / r["nfev"] for r in dop["scans"]["scipy"]]))
         mp_eval = float(np.median([r["time"] / r["nfev"] for r in dop["scans"]["mp"]]))
@@ -514,7 +546,10 @@ def render(info, args, c_cmd, versions, rk4, acc_rows, acc_fit, dop, elapsed, bu
                      if "c_ns" in rk4 else "."))
         L.append("")
     if dop.get("compared"):
-        L.append("At equal final error (log-log interpolation of time against error):")
+        fs, fm = dop["fits"]["scipy"], dop["fits"]["mp"]
+        L.append("At equal final error, from least-squares lines log10(time) = a + b log10(error) "
+                 f"(SciPy: b = {fs[0]:.3f}; multipendulum: b = {fm[0]:.3f}; the final error is "
+                 "not monotone in the tolerance, so a fit is steadier than joining the points):")
         L.append("")
         L.append("| final error | SciPy time | multipendulum time | speed-up |")
         L.append("|---|---|---|---|")
@@ -553,6 +588,8 @@ def main(argv=None):
     dop = bench_dop853(mp, args.quick, args.repeats)
 
     busy = sorted(set(busy) | set(busy_compilers()))
+    if hasattr(os, "getloadavg"):
+        info["load average at end (1, 5, 15 min)"] = " ".join(f"{x:.2f}" for x in os.getloadavg())
     report = render(info, args, c_cmd, versions, rk4, acc_rows, acc_fit, dop,
                     time.perf_counter() - start, busy)
     RESULTS.write_text(report, encoding="utf-8")

@@ -9,7 +9,6 @@ import multipendulum as mp
 from multipendulum.animation import _Painter, frame_times
 from multipendulum.results import load_results, save_results, series
 
-pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
 
 
 @pytest.fixture(scope="module")
@@ -66,9 +65,11 @@ def test_mp4(tmp_path, sol):
     assert count == len(frame_times(0.0, 2.0, 15, 1.0)) == 31
     assert seconds == pytest.approx(31 / 15, abs=0.1)
     reader = imageio_ffmpeg.read_frames(str(path))
-    meta = reader.__next__()
-    w, h = meta["size"]
-    frames = np.stack([np.frombuffer(f, np.uint8).reshape(h, w, 3) for f in reader])
+    try:
+        w, h = next(reader)["size"]
+        frames = np.stack([np.frombuffer(f, np.uint8).reshape(h, w, 3) for f in reader])
+    finally:
+        reader.close()
     assert len(frames) == 31
     _assert_not_blank(frames)
 

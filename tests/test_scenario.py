@@ -51,11 +51,12 @@ def test_examples_say_what_they_are():
     rods = mp.Chain.rods(seed001.chain["lengths"], seed001.chain["masses"])
     np.testing.assert_allclose(seed001.build_chain().com, rods.com, rtol=1e-14)
     np.testing.assert_allclose(seed001.build_chain().inertia, rods.inertia, rtol=1e-14)
-    assert seed001.method == "rk4" and seed001.dt == 0.001
+    assert seed001.method == "rk4" and seed001.dt == 0.001 and seed001.form == "hamiltonian"
+    assert seed001.replace(t_end=0.01).run().form == "hamiltonian"
     assert by_name["triple"].n == 3
     chain50 = by_name["chain50"]
     assert chain50.n == 50
-    np.testing.assert_allclose(chain50.theta0[[0, -1]], np.radians([120.0, 30.0]))
+    np.testing.assert_allclose(chain50.theta0[[0, -1]], np.radians([90.0, 45.0]))
     assert np.all(np.diff(chain50.theta0) < 0)  # a curve, not a straight line
     rod = by_name["driven_rod"]
     assert rod.chain["kind"] == "rods" and rod.torque.kind == "table" and rod.torque.convention == "joint"
@@ -147,6 +148,10 @@ BAD = [
      'expected one of "rk4", "dop853", "gauss4", "gauss6", got \'rk5\''),
     ("fixed step without dt", _edit("t_end = 0.5", 't_end = 0.5\nmethod = "gauss6"'), "simulation.dt",
      'missing; method "gauss6" takes fixed steps'),
+    ("form", _edit("t_end = 0.5", 't_end = 0.5\nform = "newtonian"'), "simulation.form",
+     'expected one of "lagrangian", "hamiltonian"'),
+    ("form with gauss", _edit("t_end = 0.5", 't_end = 0.5\nmethod = "gauss4"\ndt = 0.01\nform = "lagrangian"'),
+     "simulation.form", 'only applies to "rk4" and "dop853"'),
     ("torque kind", GOOD + '[torque]\nkind = "square"\nconvention = "joint"\n', "torque.kind",
      'expected one of "constant", "sinusoid", "table"'),
     ("torque convention", GOOD + '[torque]\nkind = "constant"\nvalue = 1.0\n', "torque.convention",
@@ -229,3 +234,19 @@ def test_sample_times_end_at_t_end():
     s = loads_scenario(GOOD.replace("t_end = 0.5", "t_end = 0.123\nsample_dt = 0.05"))
     t = s.t_eval()
     assert t[0] == 0.0 and t[-1] == 0.123 and np.all(np.diff(t) <= 0.05 + 1e-15)
+
+
+def test_the_documented_example_is_valid():
+    text = (ROOT / "docs" / "cli.md").read_text()
+    block = text.split("```toml\n", 1)[1].split("```", 1)[0]
+    scenario = loads_scenario(block)
+    assert scenario.n == 3 and scenario.torque.kind == "sinusoid"
+    assert scenario.outputs.animation == "triple.gif"
+    assert np.all(np.isfinite(scenario.replace(t_end=0.05).run().theta))
+
+
+def test_the_documented_messages_are_the_real_ones():
+    text = (ROOT / "docs" / "cli.md").read_text()
+    with pytest.raises(ScenarioError) as info:
+        loads_scenario(_edit("lengths =", "lenghts ="))
+    assert f"mine.toml: {info.value}\n" in text

@@ -8,6 +8,7 @@ and the time and energy-error labels. Joint positions come from the chain
 from __future__ import annotations
 
 import math
+import numbers
 import os
 from pathlib import Path
 from typing import Any, Callable, Optional, Union
@@ -59,9 +60,9 @@ def animate(
     if suffix not in _FORMATS:
         raise InputError(f"animation file must end in .gif or .mp4, got {str(path)!r}")
     for name, value, low in (("fps", fps, 0.0), ("speed", speed, 0.0), ("dpi", dpi, 0.0), ("size", size, 0.0)):
-        if not (isinstance(value, (int, float)) and math.isfinite(value) and value > low):
+        if not (isinstance(value, numbers.Real) and math.isfinite(value) and value > low):
             raise InputError(f"{name} must be > 0, got {value!r}")
-    if not (isinstance(trail, (int, float)) and math.isfinite(trail) and trail >= 0):
+    if not (isinstance(trail, numbers.Real) and math.isfinite(trail) and trail >= 0):
         raise InputError(f"trail must be >= 0, got {trail!r}")
 
     view = series(sol)
@@ -217,6 +218,10 @@ def _exact_palette(palette):
 def _write_gif(path: Path, frames, count: int, fps: float, progress) -> None:
     from PIL import Image
 
+    # Pillow >= 9.1 has the enums; older ones the module constants (same values).
+    _MEDIANCUT = getattr(getattr(Image, "Quantize", Image), "MEDIANCUT")
+    _NO_DITHER = getattr(getattr(Image, "Dither", Image), "NONE")
+
     images = []
     palette = None
     for k, frame in enumerate(frames):
@@ -228,8 +233,8 @@ def _write_gif(path: Path, frames, count: int, fps: float, progress) -> None:
             fade = np.round(255 * (1 - alpha + alpha * _TRAIL[None, :])).astype(np.uint8)
             swatch = np.repeat(np.repeat(fade[:, None, :], frame.shape[1], axis=1), 2, axis=0)
             sample = np.ascontiguousarray(np.concatenate([frame, swatch], axis=0))
-            palette = _exact_palette(Image.fromarray(sample).quantize(colors=255, method=Image.Quantize.MEDIANCUT))
-        images.append(image.quantize(palette=palette, dither=Image.Dither.NONE))
+            palette = _exact_palette(Image.fromarray(sample).quantize(colors=255, method=_MEDIANCUT))
+        images.append(image.quantize(palette=palette, dither=_NO_DITHER))
         _report(progress, k + 1, count)
     # GIF delays are in hundredths of a second: spread the rounding so playback stays real-time.
     ticks = np.round(np.arange(count + 1) * 100.0 / fps).astype(int)

@@ -86,7 +86,7 @@ class ProgressBar:
 def _say(args, *lines: str) -> None:
     if not args.quiet:
         for line in lines:
-            print(line)
+            print(line, flush=True)
 
 
 def _summary(scenario, sol) -> List[str]:
@@ -120,19 +120,20 @@ def _run_scenario(args, scenario, outdir: Path) -> int:
     if args.format is not None:
         results_name = str(Path(results_name).with_suffix("." + args.format))
     outdir.mkdir(parents=True, exist_ok=True)
-    written = [save_results(sol, outdir / results_name, scenario=scenario)]
+    # Say each file as soon as it exists, so an interrupted run still tells what it left.
+    _say(args, f"wrote {save_results(sol, outdir / results_name, scenario=scenario)}")
     if outputs.animation and not args.no_animation:
         with ProgressBar("animate ", quiet=args.quiet) as bar:
-            written.append(animate(
+            path = animate(
                 sol, outdir / outputs.animation, fps=outputs.fps, trail=outputs.trail,
                 speed=outputs.speed, dpi=outputs.dpi, progress=bar,
                 title=f"{scenario.name} ({sol.method})" if scenario.name else None,
-            ))
+            )
         frames = len(frame_times(sol.t[0], sol.t[-1], outputs.fps, outputs.speed))
-        written[-1] = f"{written[-1]} ({frames} frames)"
+        _say(args, f"wrote {path} ({frames} frames)")
     if outputs.plots and not args.no_plots:
-        written += plot(sol, outdir, kinds=outputs.plots, title=scenario.name or None)
-    _say(args, *(f"wrote {w}" for w in written))
+        for kind in outputs.plots:
+            _say(args, *(f"wrote {p}" for p in plot(sol, outdir, kinds=(kind,), title=scenario.name or None)))
     return 0
 
 
@@ -158,7 +159,7 @@ def _add_run(sub, common) -> None:
     )
     p.add_argument("scenario", type=Path, metavar="SCENARIO", help="scenario file (.toml)")
     p.add_argument("-o", "--output", type=Path, metavar="DIR",
-                   help="output directory (default: out/<scenario name>)")
+                   help="output directory (default: out/<scenario file name without .toml>)")
     _add_run_options(p)
     p.set_defaults(handler=_cmd_run)
 

@@ -217,6 +217,7 @@ def _metadata(sol: Any, scenario: Any) -> Dict[str, Any]:
         "version": _version(),
         "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "method": str(getattr(sol, "method", "")),
+        "form": getattr(sol, "form", None),
         "stats": {k: _plain(getattr(stats, k, None)) for k in _STATS},
         "scenario": None if scenario is None else scenario.metadata(),
         "python": platform.python_version(),

@@ -161,6 +161,7 @@ class Scenario:
     rtol: float = 1e-10
     atol: float = 1e-12
     sample_dt: float = 0.01
+    form: Optional[str] = None
     torque: Optional[TorqueSpec] = None
     outputs: Outputs = field(default_factory=Outputs)
     raw: Dict[str, Any] = field(default_factory=dict, repr=False)
@@ -208,6 +209,8 @@ class Scenario:
         kwargs: Dict[str, Any] = dict(
             method=self.method, dt=self.dt, rtol=self.rtol, atol=self.atol, t_eval=self.t_eval()
         )
+        if self.form is not None:  # only when the file asks: the core picks the natural one otherwise
+            kwargs["form"] = self.form
         kwargs.update(self.build_torque())
         return kwargs
 
@@ -222,7 +225,7 @@ class Scenario:
         so a results file says how its run differed from the scenario text."""
         overrides = dict(self.overrides)
         for key, value in changes.items():
-            if key not in {"t_end", "method", "dt", "rtol", "atol", "sample_dt", "outputs"}:
+            if key not in {"t_end", "method", "dt", "rtol", "atol", "sample_dt", "form", "outputs"}:
                 raise TypeError(f"cannot override {key!r}")
             if key != "outputs":
                 overrides[key] = value
@@ -297,7 +300,7 @@ def loads_scenario(
 _TOP_KEYS = ("name", "description", "chain", "initial", "simulation", "torque", "output")
 _CHAIN_KEYS = ("kind", "n", "lengths", "masses", "com", "inertia", "g")
 _INITIAL_KEYS = ("unit", "theta", "omega")
-_SIM_KEYS = ("t_end", "method", "dt", "rtol", "atol", "sample_dt")
+_SIM_KEYS = ("t_end", "method", "dt", "rtol", "atol", "sample_dt", "form")
 _TORQUE_KEYS = {
     "constant": ("kind", "convention", "value"),
     "sinusoid": ("kind", "convention", "amplitude", "frequency", "phase", "offset"),
@@ -527,7 +530,13 @@ class _Reader:
             "rtol": self.number(t.get("rtol", 1e-10), "simulation.rtol", positive=True),
             "atol": self.number(t.get("atol", 1e-12), "simulation.atol", positive=True),
             "sample_dt": self.number(t.get("sample_dt", 0.01), "simulation.sample_dt", positive=True),
+            "form": None,
         }
+        if "form" in t:
+            out["form"] = self.choice(t["form"], "simulation.form", ("lagrangian", "hamiltonian"))
+            if method not in ("rk4", "dop853"):
+                raise self.error("simulation.form", f'only applies to "rk4" and "dop853" (method "{method}" '
+                                 f"always integrates Hamilton's equations), got {_describe(out['form'])}")
         if dt is not None and dt > t_end:
             raise self.error("simulation.dt", f"must be <= t_end ({_describe(t_end)}), got {_describe(dt)}")
         return out

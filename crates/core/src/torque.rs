@@ -124,7 +124,8 @@ impl TorqueSource for Builtin {
                 let (a, b) = ((times[j + 1] - t) / h, (t - times[j]) / h);
                 for (i, o) in out.iter_mut().enumerate() {
                     let (y0, y1) = (values[j * n + i], values[(j + 1) * n + i]);
-                    *o = a * y0 + b * y1;
+                    // Exact on flat segments (a * y0 + b * y1 is not, since a + b rounds).
+                    *o = y0 + b * (y1 - y0);
                     if *interp == Interp::Cubic {
                         let (m0, m1) = (second[j * n + i], second[(j + 1) * n + i]);
                         *o += ((a * a * a - a) * m0 + (b * b * b - b) * m1) * h * h / 6.0;
