@@ -13,7 +13,7 @@ Nothing here reads the package or the mass-matrix formula in DESIGN.md. Three ro
 * ``seed001_rod_mass_matrix`` / ``seed001_rod_p_dot``: seed 001's closed forms for the double
   pendulum of uniform rods.
 
-``virtual_work_accelerations`` adds a numeric O(N^2) route valid for any N (D'Alembert's principle
+``virtual_work_accelerations`` adds a numeric route valid for any N (D'Alembert's principle
 with COM Jacobians built from the same geometry), used where sympy would be too slow.
 """
 
@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Callable, Optional
+from typing import Callable
 
 import numpy as np
 import sympy as sp

@@ -32,6 +32,9 @@ def __getattr__(name):
         "save_results": ("results", "save_results"),
         "load_results": ("results", "load_results"),
         "load_scenario": ("scenario", "load_scenario"),
+        "loads_scenario": ("scenario", "loads_scenario"),
+        "ScenarioError": ("scenario", "ScenarioError"),
+        "Results": ("results", "Results"),
     }
     if name in lazy:
         import importlib

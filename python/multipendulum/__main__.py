@@ -1,0 +1,6 @@
+"""`python -m multipendulum` is the `multipendulum` command."""
+import sys
+
+from .cli import main
+
+sys.exit(main())
