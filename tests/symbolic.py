@@ -62,7 +62,7 @@ def derive(n: int, kind: str = "general") -> Derivation:
 
     The algebra runs in a sympy polynomial ring over QQ whose generators are the parameters,
     ``s_k = sin(theta_k)``, ``k_k = cos(theta_k)``, ``theta_k`` (for the ``tau.theta`` term),
-    ``omega_k`` and ``alpha_k`` (theta'' ). d/dtheta_k acts by the chain rule through
+    ``omega_k`` and ``alpha_k`` (theta''). d/dtheta_k acts by the chain rule through
     ``ds_k/dtheta_k = k_k`` and ``dk_k/dtheta_k = -s_k``; d/dt is the chain rule on theta(t):
     ``sum_k d/dtheta_k * omega_k + d/domega_k * alpha_k``. Exact rational arithmetic, no
     simplification step, and about a hundred times faster than generic sympy expressions.

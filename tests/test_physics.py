@@ -73,6 +73,35 @@ def case(request):
     return chain, ref, states
 
 
+# --- the references agree with each other (no package involved) ----------------------------------
+
+
+def test_references_agree_with_each_other(case):
+    """Guards the guards: sympy vs the seeds' closed forms, D'Alembert, and energy balance."""
+    _, ref, states = case
+    lengths, masses, com, inertia, g = ref.lengths, ref.masses, ref.com, ref.inertia, ref.g
+    for theta, omega, torque in states:
+        a = ref.mass_matrix(theta)
+        acc = ref.accelerations(theta, omega, torque)
+        assert_close(ref.el_matrix(theta), a, 1e-14, "Euler-Lagrange coefficient matrix = Hessian of T")
+        a_vw, _, acc_vw = S.virtual_work_accelerations(lengths, masses, com, inertia, g, theta, omega, torque)
+        assert_close(a_vw, a, 1e-14, "virtual work A")
+        assert_close(acc_vw, acc, 1e-13, "virtual work accelerations")
+        if ref.kind == "point":
+            cramer = S.cramer_point_masses(lengths, masses, g, theta, omega, torque)
+            assert_close(cramer, acc, 1e-13, "seed 000 Cramer vs sympy")
+        if ref.kind == "rod" and ref.n == 2:
+            assert_close(S.seed001_rod_mass_matrix(lengths, masses, theta), a, 1e-14, "seed 001 A vs sympy")
+            seed_p_dot = S.seed001_rod_p_dot(lengths, masses, g, theta, omega)
+            assert_close(seed_p_dot, ref.p_dot(theta, omega), 1e-14, "seed 001 p_dot vs sympy")
+        # Along the motion dE/dt = tau . omega and dp/dt = dL/dtheta (central differences).
+        h = 1e-6
+        energy = [ref.energy(theta + s * omega, omega + s * acc) for s in (h, -h)]
+        assert_close((energy[0] - energy[1]) / (2 * h), torque @ omega, 1e-7, "power balance")
+        p = [ref.momenta(theta + s * omega, omega + s * acc) for s in (h, -h)]
+        assert_close((p[0] - p[1]) / (2 * h), ref.p_dot(theta, omega, torque), 1e-7, "dp/dt = dL/dtheta")
+
+
 # --- the package against the symbolic Lagrangian, N = 1..5 ------------------------------------------
 
 
