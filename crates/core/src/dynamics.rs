@@ -103,6 +103,7 @@ impl Chain {
     }
 
     /// `theta_ddot` for generalized torques `tau` (conjugate to the absolute angles). O(N).
+    #[inline]
     pub fn accelerations_into(
         &self,
         theta: &[f64],

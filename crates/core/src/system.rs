@@ -75,7 +75,7 @@ impl<T: TorqueSource> OdeSystem for ChainSystem<'_, T> {
         2 * self.chain.n() + usize::from(self.torque.active())
     }
 
-    #[inline]
+    #[inline(always)]
     fn rhs(&mut self, t: f64, y: &[f64], dy: &mut [f64]) -> Result<()> {
         self.evaluations += 1;
         let n = self.chain.n();

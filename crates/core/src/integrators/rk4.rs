@@ -27,22 +27,24 @@ impl FixedStep for Rk4 {
     #[inline]
     fn step<S: OdeSystem>(&mut self, sys: &mut S, t: f64, y: &mut [f64], h: f64) -> Result<()> {
         let [k1, k2, k3, k4] = &mut self.k;
-        let tmp = &mut self.tmp;
+        let tmp = &mut self.tmp[..y.len()];
+        let half = 0.5 * h;
         sys.rhs(t, y, k1)?;
-        for i in 0..y.len() {
-            tmp[i] = y[i] + 0.5 * h * k1[i];
+        for ((o, y), k) in tmp.iter_mut().zip(y.iter()).zip(k1.iter()) {
+            *o = y + half * k;
         }
-        sys.rhs(t + 0.5 * h, tmp, k2)?;
-        for i in 0..y.len() {
-            tmp[i] = y[i] + 0.5 * h * k2[i];
+        sys.rhs(t + half, tmp, k2)?;
+        for ((o, y), k) in tmp.iter_mut().zip(y.iter()).zip(k2.iter()) {
+            *o = y + half * k;
         }
-        sys.rhs(t + 0.5 * h, tmp, k3)?;
-        for i in 0..y.len() {
-            tmp[i] = y[i] + h * k3[i];
+        sys.rhs(t + half, tmp, k3)?;
+        for ((o, y), k) in tmp.iter_mut().zip(y.iter()).zip(k3.iter()) {
+            *o = y + h * k;
         }
         sys.rhs(t + h, tmp, k4)?;
-        for i in 0..y.len() {
-            y[i] += h / 6.0 * (k1[i] + 2.0 * (k2[i] + k3[i]) + k4[i]);
+        let sixth = h / 6.0;
+        for ((((y, a), b), c), d) in y.iter_mut().zip(k1.iter()).zip(k2.iter()).zip(k3.iter()).zip(k4.iter()) {
+            *y += sixth * (a + 2.0 * (b + c) + d);
         }
         Ok(())
     }
