@@ -176,6 +176,84 @@ impl Chain {
         Ok(())
     }
 
+    /// `sum_{b != a} K_ab sin(theta_a - theta_b) u_b` into `sin_out` and the same with `cos` into
+    /// `cos_out`, O(N) by prefix sums over the links above and suffix sums over those below.
+    /// Needs `ws` trig of the current angles.
+    fn coupled_sums(&self, ws: &Workspace, u: &[f64], sin_out: &mut [f64], cos_out: &mut [f64]) {
+        let n = u.len();
+        let (l, h, s, c) = (&self.lengths[..n], &self.h[..n], &ws.sin[..n], &ws.cos[..n]);
+        let (mut pc, mut ps) = (0.0, 0.0);
+        for a in 0..n {
+            sin_out[a] = h[a] * (s[a] * pc - c[a] * ps);
+            cos_out[a] = h[a] * (c[a] * pc + s[a] * ps);
+            pc += l[a] * u[a] * c[a];
+            ps += l[a] * u[a] * s[a];
+        }
+        let (mut qc, mut qs) = (0.0, 0.0);
+        for a in (0..n).rev() {
+            sin_out[a] += l[a] * (s[a] * qc - c[a] * qs);
+            cos_out[a] += l[a] * (c[a] * qc + s[a] * qs);
+            qc += h[a] * u[a] * c[a];
+            qs += h[a] * u[a] * s[a];
+        }
+    }
+
+    /// The variational (tangent) equations of the Lagrangian form: the derivative of
+    /// `theta_ddot(theta, omega)` along `(d_theta, d_omega)`, for torques that depend on time only.
+    /// Differentiating `A theta_ddot = r` gives `A d_theta_ddot = dr - (dA) theta_ddot`; every term
+    /// is a sum of `K_ab sin/cos(theta_a - theta_b)` against a vector, so it costs O(N) like the
+    /// accelerations. `accel` is `theta_ddot` at the same state; `scratch` holds 6N values.
+    #[allow(clippy::too_many_arguments)]
+    pub fn tangent_accelerations_into(
+        &self,
+        theta: &[f64],
+        omega: &[f64],
+        accel: &[f64],
+        d_theta: &[f64],
+        d_omega: &[f64],
+        out: &mut [f64],
+        scratch: &mut [f64],
+        ws: &mut Workspace,
+    ) -> Result<(), Singular> {
+        let n = self.n();
+        self.trig(&theta[..n], ws);
+        let (u, rest) = scratch.split_at_mut(n);
+        let (ss, rest) = rest.split_at_mut(n);
+        let (cs, rest) = rest.split_at_mut(n);
+        let (s2, rest) = rest.split_at_mut(n);
+        let (c2, _) = rest.split_at_mut(n);
+        let out = &mut out[..n];
+        // -g h_a cos(th_a) dth_a - dth_a C[w^2]_a + C[dth w^2]_a
+        for a in 0..n {
+            u[a] = omega[a] * omega[a];
+        }
+        self.coupled_sums(ws, u, ss, cs);
+        for a in 0..n {
+            out[a] = -self.g * self.h[a] * ws.cos[a] * d_theta[a] - d_theta[a] * cs[a];
+            u[a] = d_theta[a] * omega[a] * omega[a];
+        }
+        self.coupled_sums(ws, u, ss, cs);
+        // - 2 S[w dw]_a
+        for a in 0..n {
+            out[a] += cs[a];
+            u[a] = omega[a] * d_omega[a];
+        }
+        self.coupled_sums(ws, u, s2, c2);
+        // + dth_a S[accel]_a - S[dth accel]_a
+        self.coupled_sums(ws, &accel[..n], ss, cs);
+        for a in 0..n {
+            out[a] += -2.0 * s2[a] + d_theta[a] * ss[a];
+            u[a] = d_theta[a] * accel[a];
+        }
+        self.coupled_sums(ws, u, ss, cs);
+        for a in 0..n {
+            out[a] -= ss[a];
+        }
+        self.eliminate(ws, out, |_, _, _| 0.0)?;
+        self.substitute(ws, out, |_, _, _, _| {});
+        Ok(())
+    }
+
     /// `omega = A(theta)^-1 p`. O(N).
     pub fn velocities_into(&self, theta: &[f64], p: &[f64], out: &mut [f64], ws: &mut Workspace) -> Result<(), Singular> {
         let n = self.n();

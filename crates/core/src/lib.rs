@@ -3,9 +3,11 @@
 //! Layers: [`model::Chain`] holds validated constant parameters; [`dynamics`] evaluates the
 //! Lagrangian and Hamiltonian forms with preallocated [`dynamics::Workspace`] buffers;
 //! [`integrators`] advance a state; [`simulate`] drives a run and collects its output.
+pub mod chaos;
 pub mod dynamics;
 pub mod error;
 pub mod model;
+mod par;
 pub mod reference;
 
 pub use dynamics::{Singular, Workspace};
@@ -13,11 +15,13 @@ pub use error::{Error, Result};
 pub use model::Chain;
 pub mod integrators;
 pub mod simulate;
+pub mod stepper;
 pub mod system;
 pub mod torque;
 mod trig;
 
 pub use integrators::Method;
 pub use simulate::{simulate, simulate_batch, Settings, Stats, Trajectory};
+pub use stepper::Stepper;
 pub use system::{ChainSystem, Form, OdeSystem};
 pub use torque::{Builtin, Interp, Joint, TorqueSource};

@@ -189,6 +189,38 @@ mod tests {
     }
 
     #[test]
+    fn tangent_equations_match_central_differences() {
+        let mut seed = 21;
+        for &(n, point) in &[(1, true), (2, true), (3, false), (7, false), (30, true)] {
+            let chain = random_chain(n, &mut seed, point);
+            let theta: Vec<f64> = (0..n).map(|_| 6.0 * lcg(&mut seed) - 3.0).collect();
+            let omega: Vec<f64> = (0..n).map(|_| 4.0 * lcg(&mut seed) - 2.0).collect();
+            let dth: Vec<f64> = (0..n).map(|_| lcg(&mut seed) - 0.5).collect();
+            let dom: Vec<f64> = (0..n).map(|_| lcg(&mut seed) - 0.5).collect();
+            let tau = vec![0.0; n];
+            let mut ws = Workspace::new(n);
+            let accel_at = |th: &[f64], om: &[f64], ws: &mut Workspace| {
+                let mut a = vec![0.0; n];
+                chain.accelerations_impl(th, om, &tau, &mut a, ws).unwrap();
+                a
+            };
+            let acc = accel_at(&theta, &omega, &mut ws);
+            let (mut tangent, mut scratch) = (vec![0.0; n], vec![0.0; 6 * n]);
+            chain.tangent_accelerations_into(&theta, &omega, &acc, &dth, &dom, &mut tangent, &mut scratch, &mut ws).unwrap();
+            let e = 1e-5;
+            let shift = |sign: f64| -> (Vec<f64>, Vec<f64>) {
+                (theta.iter().zip(&dth).map(|(t, d)| t + sign * e * d).collect(),
+                 omega.iter().zip(&dom).map(|(w, d)| w + sign * e * d).collect())
+            };
+            let (tp, wp) = shift(1.0);
+            let (tm, wm) = shift(-1.0);
+            let (ap, am) = (accel_at(&tp, &wp, &mut ws), accel_at(&tm, &wm, &mut ws));
+            let fd: Vec<f64> = ap.iter().zip(&am).map(|(p, m)| (p - m) / (2.0 * e)).collect();
+            assert!(max_rel(&tangent, &fd) < 1e-7, "n={n}: {}", max_rel(&tangent, &fd));
+        }
+    }
+
+    #[test]
     fn momenta_and_velocities_invert_each_other() {
         let mut seed = 3;
         let n = 25;

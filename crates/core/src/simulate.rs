@@ -1,6 +1,6 @@
 //! One run from an initial state to `t_end`: validation, the integration loop, output at the
 //! requested times, and the derived quantities (momenta or velocities, energy, work).
-use rayon::prelude::*;
+use crate::par::*;
 
 use crate::dynamics::Workspace;
 use crate::error::{Error, Result};
@@ -426,8 +426,9 @@ fn finish(chain: &Chain, form: Form, work: bool, rec: Recorder, mut stats: Stats
     tr
 }
 
-/// Run a batch of initial states in parallel (rayon); results in input order, each identical to
-/// its single run whatever the number of threads. Rows of `theta0`/`omega0` are states.
+/// Run a batch of initial states in parallel (rayon; one after another without the `parallel`
+/// feature); results in input order, each identical to its single run whatever the number of
+/// threads. Rows of `theta0`/`omega0` are states.
 pub fn simulate_batch<T: TorqueSource + Clone + Send + Sync>(
     chain: &Chain,
     theta0: &[f64],

@@ -545,10 +545,77 @@ fn simulate<'py>(
     trajectories_out(py, trs)
 }
 
+/// A built-in generalized torque for the chaos kernels (which run without the GIL).
+fn builtin_only(py: Python<'_>, n: usize, spec: Option<&Bound<'_, PyTuple>>, what: &str) -> PyResult<Builtin> {
+    let _ = py;
+    match spec {
+        None => Ok(Builtin::None),
+        Some(spec) if spec.get_item(0)?.extract::<String>()? == "callable" => Err(InputError::new_err(format!(
+            "{what} takes built-in torques only (constant, Sinusoid, Table), not a Python function"
+        ))),
+        Some(spec) => builtin(n, spec),
+    }
+}
+
+/// Lyapunov exponents by the variational equations; see `multipendulum_core::chaos::lyapunov`.
+#[pyfunction]
+#[pyo3(signature = (chain, theta0, omega0, t_end, dt, k, renorm_every, torque_spec))]
+#[allow(clippy::too_many_arguments)]
+fn lyapunov<'py>(
+    py: Python<'py>,
+    chain: &PyChain,
+    theta0: Vec<f64>,
+    omega0: Vec<f64>,
+    t_end: f64,
+    dt: f64,
+    k: usize,
+    renorm_every: u64,
+    torque_spec: Option<Bound<'py, PyTuple>>,
+) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>)> {
+    let c = &chain.inner;
+    let torque = builtin_only(py, c.n(), torque_spec.as_ref(), "lyapunov")?;
+    let out = py
+        .detach(|| core::chaos::lyapunov(c, &theta0, &omega0, t_end, dt, k, renorm_every, torque))
+        .map_err(|e| to_py(py, e))?;
+    Ok((vec_out(py, out.exponents), vec_out(py, out.times), vec_out(py, out.history)))
+}
+
+/// First-flip times of the rows of flat `theta0`/`omega0` (+inf: never), in parallel.
+#[pyfunction]
+#[pyo3(signature = (chain, theta0, omega0, t_max, dt, link, torque_spec))]
+#[allow(clippy::too_many_arguments)]
+fn first_flips<'py>(
+    py: Python<'py>,
+    chain: &PyChain,
+    theta0: PyReadonlyArray1<'py, f64>,
+    omega0: PyReadonlyArray1<'py, f64>,
+    t_max: f64,
+    dt: f64,
+    link: Option<usize>,
+    torque_spec: Option<Bound<'py, PyTuple>>,
+) -> PyResult<Bound<'py, PyArray1<f64>>> {
+    let c = &chain.inner;
+    let torque = builtin_only(py, c.n(), torque_spec.as_ref(), "flip maps")?;
+    let (theta0, omega0) = (slice("theta0", &theta0)?, slice("omega0", &omega0)?);
+    let out = py
+        .detach(|| core::chaos::first_flips(c, theta0, omega0, t_max, dt, link, &torque))
+        .map_err(|e| to_py(py, e))?;
+    Ok(vec_out(py, out))
+}
+
+#[pyfunction]
+#[pyo3(signature = (chain, link))]
+fn flip_energy_threshold(py: Python<'_>, chain: &PyChain, link: Option<usize>) -> PyResult<f64> {
+    core::chaos::flip_energy_threshold(&chain.inner, link).map_err(|e| to_py(py, e))
+}
+
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyChain>()?;
     m.add_function(wrap_pyfunction!(simulate, m)?)?;
+    m.add_function(wrap_pyfunction!(lyapunov, m)?)?;
+    m.add_function(wrap_pyfunction!(first_flips, m)?)?;
+    m.add_function(wrap_pyfunction!(flip_energy_threshold, m)?)?;
     m.add("InputError", m.py().get_type::<InputError>())?;
     m.add("IntegrationError", m.py().get_type::<IntegrationError>())?;
     m.add("METHODS", Method::ALL.iter().map(|m| m.name()).collect::<Vec<_>>())?;

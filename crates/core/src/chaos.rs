@@ -1,0 +1,257 @@
+//! Chaos tools: Lyapunov exponents from the variational equations, and first-flip times of
+//! ensembles (the flip-time "fractal") with the energy bound that forbids flips.
+use crate::par::*;
+
+use crate::dynamics::Workspace;
+use crate::error::{Error, Result};
+use crate::integrators::{FixedStep, Rk4};
+use crate::model::Chain;
+use crate::system::{OdeSystem, NON_FINITE};
+use crate::torque::{Builtin, TorqueSource};
+
+/// The Lagrangian form with `k` tangent vectors riding along:
+/// `y = [theta, omega, (d_theta, d_omega) x k]`.
+struct Tangent<'c> {
+    chain: &'c Chain,
+    torque: Builtin,
+    k: usize,
+    ws: Workspace,
+    tau: Vec<f64>,
+    scratch: Vec<f64>,
+}
+
+impl OdeSystem for Tangent<'_> {
+    fn dim(&self) -> usize {
+        2 * self.chain.n() * (1 + self.k)
+    }
+
+    fn rhs(&mut self, t: f64, y: &[f64], dy: &mut [f64]) -> Result<()> {
+        let n = self.chain.n();
+        if self.torque.active() {
+            self.torque.eval(t, &y[..n], &y[n..2 * n], &mut self.tau)?;
+        }
+        dy[..n].copy_from_slice(&y[n..2 * n]);
+        let fail = |_| Error::integration(t, if y.iter().all(|v| v.is_finite()) { "singular mass matrix" } else { NON_FINITE });
+        let (head, tail) = dy.split_at_mut(2 * n);
+        self.chain.accelerations_into(&y[..n], &y[n..2 * n], &self.tau, &mut head[n..], &mut self.ws).map_err(fail)?;
+        for j in 0..self.k {
+            let v = &y[2 * n * (j + 1)..2 * n * (j + 2)];
+            let dv = &mut tail[2 * n * j..2 * n * (j + 1)];
+            dv[..n].copy_from_slice(&v[n..]);
+            self.chain
+                .tangent_accelerations_into(&y[..n], &y[n..2 * n], &head[n..], &v[..n], &v[n..], &mut dv[n..], &mut self.scratch, &mut self.ws)
+                .map_err(fail)?;
+        }
+        Ok(())
+    }
+}
+
+/// Lyapunov exponents of a run: the final estimates (largest first) and their history.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Lyapunov {
+    pub exponents: Vec<f64>,
+    /// Times of the re-orthonormalisations.
+    pub times: Vec<f64>,
+    /// Running estimates at those times, row-major `(times.len(), k)`.
+    pub history: Vec<f64>,
+}
+
+/// The `k` largest Lyapunov exponents (1/s) by integrating the variational equations with rk4 at
+/// step `dt` and re-orthonormalising the tangent vectors (modified Gram–Schmidt, Benettin et al.
+/// 1980) every `renorm_every` steps. `k = 2N` gives the full spectrum. Torques may depend on time.
+#[allow(clippy::too_many_arguments)]
+pub fn lyapunov(
+    chain: &Chain,
+    theta0: &[f64],
+    omega0: &[f64],
+    t_end: f64,
+    dt: f64,
+    k: usize,
+    renorm_every: u64,
+    torque: Builtin,
+) -> Result<Lyapunov> {
+    let n = chain.n();
+    chain.check_state("theta0", theta0)?;
+    chain.check_state("omega0", omega0)?;
+    if !(t_end.is_finite() && t_end > 0.0) {
+        return Err(Error::input(format!("t_end must be > 0 and finite, got {t_end}")));
+    }
+    if !(dt.is_finite() && dt > 0.0 && dt <= t_end) {
+        return Err(Error::input(format!("dt must be > 0, finite and <= t_end, got {dt}")));
+    }
+    if k == 0 || k > 2 * n {
+        return Err(Error::input(format!("k must be between 1 and 2N = {}, got {k}", 2 * n)));
+    }
+    if renorm_every == 0 {
+        return Err(Error::input("renorm_every must be >= 1 step, got 0"));
+    }
+    let mut sys = Tangent { chain, torque, k, ws: Workspace::new(n), tau: vec![0.0; n], scratch: vec![0.0; 6 * n] };
+    let d = sys.dim();
+    let mut y = vec![0.0; d];
+    y[..n].copy_from_slice(theta0);
+    y[n..2 * n].copy_from_slice(omega0);
+    for j in 0..k {
+        y[2 * n * (j + 1) + j] = 1.0; // unit vectors: an orthonormal start
+    }
+    let mut rk = Rk4::new(d);
+    let steps = (t_end / dt).round().max(1.0) as u64;
+    let mut sums = vec![0.0; k];
+    let mut out = Lyapunov { exponents: vec![0.0; k], times: Vec::new(), history: Vec::new() };
+    for step in 1..=steps {
+        let t = (step - 1) as f64 * dt;
+        rk.step(&mut sys, t, &mut y, dt)?;
+        if step % renorm_every == 0 || step == steps {
+            if !y.iter().all(|v| v.is_finite()) {
+                return Err(Error::integration(t + dt, NON_FINITE));
+            }
+            let (_, vs) = y.split_at_mut(2 * n);
+            for j in 0..k {
+                let (done, rest) = vs.split_at_mut(2 * n * j);
+                let v = &mut rest[..2 * n];
+                for i in 0..j {
+                    let u = &done[2 * n * i..2 * n * (i + 1)];
+                    let dot: f64 = u.iter().zip(v.iter()).map(|(a, b)| a * b).sum();
+                    v.iter_mut().zip(u).for_each(|(b, a)| *b -= dot * a);
+                }
+                let norm = v.iter().map(|x| x * x).sum::<f64>().sqrt();
+                if !(norm > 0.0) {
+                    return Err(Error::integration(t + dt, "a tangent vector collapsed; renormalise more often"));
+                }
+                sums[j] += norm.ln();
+                v.iter_mut().for_each(|x| *x /= norm);
+            }
+            let time = step as f64 * dt;
+            out.times.push(time);
+            out.history.extend(sums.iter().map(|s| s / time));
+        }
+    }
+    out.exponents = sums.iter().map(|s| s / (steps as f64 * dt)).collect();
+    Ok(out)
+}
+
+/// The least energy a chain needs before link `link` (or, with `None`, any link) can go over the
+/// top: with `theta_k = pi` the potential is at least `g h_k - g sum_{i != k} |h_i|` (the
+/// potential separates in the absolute angles), and kinetic energy is never negative. A chain
+/// released with less energy can never flip that link.
+pub fn flip_energy_threshold(chain: &Chain, link: Option<usize>) -> Result<f64> {
+    let n = chain.n();
+    let g = chain.g;
+    let total: f64 = chain.h.iter().map(|h| h.abs()).sum();
+    let bound = |k: usize| g * chain.h[k] - g * (total - chain.h[k].abs());
+    match link {
+        Some(k) if k >= n => Err(Error::input(format!("link must be < N = {n}, got {k}"))),
+        Some(k) => Ok(bound(k)),
+        None => Ok((0..n).map(bound).fold(f64::INFINITY, f64::min)),
+    }
+}
+
+/// For each initial state (rows of `theta0`, `omega0`), the first time at which `|theta_link|`
+/// reaches pi (`link = None`: any link), integrating with rk4 at step `dt` up to `t_max`; the
+/// crossing is located by bisection on the cubic Hermite interpolant of the step. Never: +inf.
+/// Runs in parallel; each result is independent of the number of threads.
+pub fn first_flips(
+    chain: &Chain,
+    theta0: &[f64],
+    omega0: &[f64],
+    t_max: f64,
+    dt: f64,
+    link: Option<usize>,
+    torque: &Builtin,
+) -> Result<Vec<f64>> {
+    let n = chain.n();
+    if theta0.len() != omega0.len() || theta0.len() % n != 0 {
+        return Err(Error::input(format!("theta0 and omega0 must both have shape (B, {n})")));
+    }
+    crate::error::check_finite("theta0", theta0)?;
+    crate::error::check_finite("omega0", omega0)?;
+    if !(t_max.is_finite() && t_max > 0.0) {
+        return Err(Error::input(format!("t_max must be > 0 and finite, got {t_max}")));
+    }
+    if !(dt.is_finite() && dt > 0.0) {
+        return Err(Error::input(format!("dt must be > 0 and finite, got {dt}")));
+    }
+    if let Some(k) = link {
+        if k >= n {
+            return Err(Error::input(format!("link must be < N = {n}, got {k}")));
+        }
+    }
+    let links: Vec<usize> = link.map_or_else(|| (0..n).collect(), |k| vec![k]);
+    let steps = (t_max / dt).ceil() as u64;
+    theta0
+        .par_chunks(n)
+        .zip(omega0.par_chunks(n))
+        .map_init(
+            || (crate::system::ChainSystem::new(chain, torque.clone(), crate::system::Form::Lagrangian), Rk4::new(2 * n + 1)),
+            |(sys, rk), (th, om)| {
+                let pi = std::f64::consts::PI;
+                if links.iter().any(|&k| th[k].abs() >= pi) {
+                    return Ok(0.0);
+                }
+                let d = sys.dim();
+                let mut y = vec![0.0; d];
+                y[..n].copy_from_slice(th);
+                y[n..2 * n].copy_from_slice(om);
+                let mut y0 = y.clone();
+                for step in 0..steps {
+                    let t = step as f64 * dt;
+                    y0.copy_from_slice(&y);
+                    rk.step(sys, t, &mut y, dt)?;
+                    if let Some(&k) = links.iter().find(|&&k| y[k].abs() >= pi) {
+                        // Locate |theta_k| = pi on the step's cubic Hermite interpolant.
+                        let target = pi.copysign(y[k]);
+                        let (mut f0, mut f1) = (vec![0.0; d], vec![0.0; d]);
+                        sys.rhs(t, &y0, &mut f0)?;
+                        sys.rhs(t + dt, &y, &mut f1)?;
+                        let theta_at = |x: f64| {
+                            let (x2, x3) = (x * x, x * x * x);
+                            (2.0 * x3 - 3.0 * x2 + 1.0) * y0[k] + (x3 - 2.0 * x2 + x) * dt * f0[k]
+                                + (-2.0 * x3 + 3.0 * x2) * y[k] + (x3 - x2) * dt * f1[k]
+                        };
+                        let (mut lo, mut hi) = (0.0f64, 1.0f64);
+                        for _ in 0..60 {
+                            let mid = 0.5 * (lo + hi);
+                            if (theta_at(mid) - target) * target.signum() >= 0.0 {
+                                hi = mid;
+                            } else {
+                                lo = mid;
+                            }
+                        }
+                        return Ok((t + hi * dt).min(t + dt));
+                    }
+                    if step % 64 == 0 && !y.iter().all(|v| v.is_finite()) {
+                        return Err(Error::integration(t + dt, NON_FINITE));
+                    }
+                }
+                Ok(f64::INFINITY)
+            },
+        )
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn energy_thresholds_give_the_known_flip_bounds() {
+        let g = 9.81;
+        // Equal point masses: no flip where 2 cos th1 + cos th2 > 1, i.e. E < -g.
+        let point = Chain::new(&[1.0, 1.0], &[1.0, 1.0], None, None, g).unwrap();
+        assert!((flip_energy_threshold(&point, None).unwrap() + g).abs() < 1e-12);
+        // Equal uniform rods: no flip where 3 cos th1 + cos th2 > 2, i.e. E < -g (in units of m l).
+        let rods = Chain::rods(&[1.0, 1.0], &[1.0, 1.0], g).unwrap();
+        assert!((flip_energy_threshold(&rods, None).unwrap() + g).abs() < 1e-12);
+        assert!((flip_energy_threshold(&point, Some(0)).unwrap() - g).abs() < 1e-12);
+    }
+
+    #[test]
+    fn small_oscillations_have_near_zero_exponents_and_the_spectrum_sums_to_zero() {
+        let chain = Chain::new(&[1.0, 1.0], &[1.0, 1.0], None, None, 9.81).unwrap();
+        let small = lyapunov(&chain, &[0.01, 0.0], &[0.0, 0.0], 200.0, 0.01, 4, 10, Builtin::None).unwrap();
+        assert!(small.exponents.iter().all(|l| l.abs() < 0.05), "{:?}", small.exponents);
+        let chaotic = lyapunov(&chain, &[2.0, 2.5], &[0.0, 0.0], 200.0, 0.005, 4, 10, Builtin::None).unwrap();
+        let sum: f64 = chaotic.exponents.iter().sum();
+        assert!(chaotic.exponents[0] > 0.5, "{:?}", chaotic.exponents);
+        assert!(sum.abs() < 0.02 * chaotic.exponents[0], "{:?}", chaotic.exponents);
+    }
+}

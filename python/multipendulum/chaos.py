@@ -1,0 +1,131 @@
+"""Chaos tools: Lyapunov exponents, first-flip times and flip-time maps. The computation runs in
+the Rust core, in parallel and without the GIL; this module validates and shapes."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import _core
+from ._chain import Chain, as_state
+from ._torque import normalise_torque
+from .errors import InputError
+
+__all__ = ["LyapunovResult", "lyapunov", "trustworthy_until", "flip_energy_threshold", "flip_times", "flip_map", "FlipMap"]
+
+
+@dataclass(frozen=True)
+class LyapunovResult:
+    """``exponents`` (k,) in 1/s, largest first; ``times`` (R,) of the re-orthonormalisations and
+    ``history`` (R, k) of the running estimates, to judge convergence."""
+
+    exponents: np.ndarray
+    times: np.ndarray
+    history: np.ndarray
+
+    @property
+    def largest(self) -> float:
+        return float(self.exponents[0])
+
+
+def _link(link, n):
+    if link is None:
+        return None
+    if not isinstance(link, (int, np.integer)) or not 0 <= link < n:
+        raise InputError(f"link must be an integer in [0, {n}) or None (any link), got {link!r}")
+    return int(link)
+
+
+def lyapunov(chain: Chain, theta0, omega0, t_end, dt=0.005, k=None, renorm_every=10, torque=None) -> LyapunovResult:
+    """The ``k`` largest Lyapunov exponents (default: the full spectrum, k = 2N).
+
+    Integrates the variational (tangent) equations of the Lagrangian form with rk4 at step ``dt``
+    and re-orthonormalises the tangent vectors every ``renorm_every`` steps (Benettin et al. 1980).
+    For the undriven chain the spectrum comes in +/- pairs summing to ~0. ``torque`` may depend
+    on time (a constant, :class:`Sinusoid` or :class:`Table`).
+
+    >>> import multipendulum as mp
+    >>> res = mp.lyapunov(mp.Chain([1, 1], [1, 1]), [2.0, 2.5], [0, 0], t_end=100.0)
+    >>> bool(res.largest > 0.5)
+    True
+    """
+    th0, om0 = as_state(theta0, "theta0", chain.n), as_state(omega0, "omega0", chain.n)
+    if th0.ndim != 1 or om0.ndim != 1:
+        raise InputError(f"theta0 and omega0 must have shape ({chain.n},)")
+    k = 2 * chain.n if k is None else k
+    if not isinstance(k, (int, np.integer)):
+        raise InputError(f"k must be an integer between 1 and 2N = {2 * chain.n}, got {k!r}")
+    if not isinstance(renorm_every, (int, np.integer)) or renorm_every < 1:
+        raise InputError(f"renorm_every must be a positive integer (steps), got {renorm_every!r}")
+    spec, joint = normalise_torque(torque, None, chain.n)
+    exps, times, hist = _core.lyapunov(chain._c, th0.tolist(), om0.tolist(), float(t_end), float(dt), int(k),
+                                       int(renorm_every), spec)
+    return LyapunovResult(exps, times, hist.reshape(times.size, int(k)))
+
+
+def trustworthy_until(lyapunov_exponent: float, tolerance: float = 1e-2, eps: float = 1e-16) -> float:
+    """How long a chaotic run stays within ``tolerance`` of the true trajectory when it starts
+    off by ``eps`` (round-off): ``ln(tolerance / eps) / lambda_max``; infinite when lambda <= 0."""
+    if lyapunov_exponent <= 0:
+        return float("inf")
+    return float(np.log(tolerance / eps) / lyapunov_exponent)
+
+
+def flip_energy_threshold(chain: Chain, link=None) -> float:
+    """The least energy (J) with which link ``link`` (None: any link) can go over the top:
+    ``g h_k - g sum_{i != k} |h_i|``. A chain released with less can never flip it."""
+    return _core.flip_energy_threshold(chain._c, _link(link, chain.n))
+
+
+def flip_times(chain: Chain, theta0, omega0=None, t_max=10.0, dt=0.01, link=None, torque=None) -> np.ndarray:
+    """First time each initial state's link ``link`` (None: any link) reaches |theta| = pi,
+    by rk4 at step ``dt`` and root finding within the step; ``inf`` where it never does by
+    ``t_max``. ``theta0`` (..., N); ``omega0`` defaults to rest. Parallel on all cores."""
+    th0 = as_state(theta0, "theta0", chain.n)
+    om0 = np.zeros_like(th0) if omega0 is None else as_state(omega0, "omega0", chain.n)
+    if th0.shape != om0.shape:
+        raise InputError(f"theta0 and omega0 must have the same shape, got {th0.shape} and {om0.shape}")
+    spec, _ = normalise_torque(torque, None, chain.n)
+    out = _core.first_flips(chain._c, th0.ravel(), om0.ravel(), float(t_max), float(dt), _link(link, chain.n), spec)
+    return out.reshape(th0.shape[:-1])
+
+
+@dataclass(frozen=True)
+class FlipMap:
+    """First-flip times ``times[i, j]`` for the initial values ``x[j]`` (of the first varied
+    quantity) and ``y[i]``; ``inf`` never flipped by ``t_max``. ``allowed[i, j]`` is False where
+    the energy bound forbids any flip."""
+
+    x: np.ndarray
+    y: np.ndarray
+    times: np.ndarray
+    allowed: np.ndarray
+    t_max: float
+    threshold: float
+
+
+def flip_map(chain: Chain, x, y, t_max=10.0, dt=0.01, vary=("theta", 0, "theta", 1), base_theta=None,
+             base_omega=None, link=None, torque=None) -> FlipMap:
+    """Flip-time map over a grid of two initial values (radians or rad/s).
+
+    ``vary=(kind_x, index_x, kind_y, index_y)`` names the two varied quantities, each ``"theta"``
+    or ``"omega"`` of a link (default: theta_1 along x, theta_2 along y, from rest). The rest of
+    the initial state is ``base_theta`` / ``base_omega`` (default 0).
+    """
+    x, y = np.asarray(x, dtype=float).ravel(), np.asarray(y, dtype=float).ravel()
+    n = chain.n
+    th_base = np.zeros(n) if base_theta is None else as_state(base_theta, "base_theta", n)
+    om_base = np.zeros(n) if base_omega is None else as_state(base_omega, "base_omega", n)
+    kx, ix, ky, iy = vary
+    for kind, idx in ((kx, ix), (ky, iy)):
+        if kind not in ("theta", "omega") or not isinstance(idx, (int, np.integer)) or not 0 <= idx < n:
+            raise InputError(f"vary must name ('theta'|'omega', link index < {n}) twice, got {vary!r}")
+    X, Y = np.meshgrid(x, y)
+    theta0 = np.broadcast_to(th_base, X.shape + (n,)).copy()
+    omega0 = np.broadcast_to(om_base, X.shape + (n,)).copy()
+    for kind, idx, values in ((kx, ix, X), (ky, iy, Y)):
+        (theta0 if kind == "theta" else omega0)[..., idx] = values
+    times = flip_times(chain, theta0, omega0, t_max=t_max, dt=dt, link=link, torque=torque)
+    threshold = flip_energy_threshold(chain, link)
+    allowed = chain.energy(theta0, omega0) >= threshold
+    return FlipMap(x, y, times, allowed, float(t_max), threshold)

@@ -1,0 +1,80 @@
+"""Chaos tools: Lyapunov spectra from the variational equations, flip times, the flip-map energy bound."""
+import numpy as np
+import pytest
+from scipy.integrate import quad
+
+import multipendulum as mp
+
+DOUBLE = mp.Chain(lengths=[1.0, 1.0], masses=[1.0, 1.0])
+
+
+def test_full_spectrum_of_the_chaotic_double_pendulum_pairs_up_and_sums_to_zero():
+    res = mp.lyapunov(DOUBLE, [2.0, 2.5], [0.0, 0.0], t_end=200.0, dt=0.005)
+    lam = res.exponents
+    assert lam.shape == (4,) and np.all(np.diff(lam) <= 0)
+    assert lam[0] > 0.5  # chaotic
+    assert abs(lam.sum()) < 0.02 * lam[0]  # Hamiltonian: phase-space volume is conserved
+    assert abs(lam[0] + lam[3]) < 0.05 * lam[0] and abs(lam[1] + lam[2]) < 0.05 * lam[0]  # +/- pairs
+    assert res.history.shape == (res.times.size, 4)
+
+
+def test_small_oscillations_have_exponents_near_zero():
+    res = mp.lyapunov(DOUBLE, [0.05, 0.0], [0.0, 0.0], t_end=200.0)
+    assert np.max(np.abs(res.exponents)) < 0.03
+
+
+def test_rods_and_longer_chains_are_chaotic_too_with_zero_sum():
+    chain = mp.Chain.rods(lengths=[1.0, 0.8, 0.6], masses=[1.0, 0.8, 0.6])
+    res = mp.lyapunov(chain, [1.5, 2.0, 2.5], [0, 0, 0], t_end=100.0, dt=0.002)
+    assert res.largest > 0.3
+    assert abs(res.exponents.sum()) < 0.03 * res.largest
+
+
+def test_trustworthy_until_uses_the_largest_exponent():
+    assert mp.trustworthy_until(1.0, tolerance=1e-2, eps=1e-16) == pytest.approx(np.log(1e14))
+    assert mp.trustworthy_until(0.0) == np.inf
+
+
+def test_flip_time_of_a_single_pendulum_matches_the_quadrature():
+    g, l, w0 = 9.81, 1.0, 7.0  # enough energy to go over the top: w0^2 > 4 g / l
+    chain = mp.Chain(lengths=[l], masses=[1.0], g=g)
+    exact, _ = quad(lambda th: 1.0 / np.sqrt(w0**2 - 2 * g / l * (1 - np.cos(th))), 0.0, np.pi, epsabs=1e-13)
+    t = mp.flip_times(chain, [0.0], [w0], t_max=5.0, dt=0.01)
+    assert abs(float(t) - exact) < 1e-6, (float(t), exact)
+    assert mp.flip_times(chain, [0.0], [5.0], t_max=5.0, dt=0.01) == np.inf  # not enough energy
+
+
+@pytest.mark.parametrize("make, bound", [
+    (lambda: mp.Chain([1, 1], [1, 1]), lambda t1, t2: 2 * np.cos(t1) + np.cos(t2) > 1),
+    (lambda: mp.Chain.rods([1, 1], [1, 1]), lambda t1, t2: 3 * np.cos(t1) + np.cos(t2) > 2),
+])
+def test_flip_map_respects_the_energy_bound(make, bound):
+    chain = make()
+    x = np.linspace(-np.pi, np.pi, 61)
+    fm = mp.flip_map(chain, x, x, t_max=8.0)
+    T1, T2 = np.meshgrid(x, x)
+    forbidden = bound(T1, T2)
+    # The derived threshold reproduces the known closed-form regions (up to the boundary itself).
+    interior = np.abs(fm.allowed.astype(int) - (~forbidden).astype(int)) == 0
+    assert interior.mean() > 0.99
+    assert not np.any(np.isfinite(fm.times) & forbidden)  # nothing flips where energy forbids it
+    assert np.isfinite(fm.times[~forbidden]).mean() > 0.3  # and much of the rest does
+
+
+def test_flip_times_are_thread_count_independent_and_match_single_runs():
+    rng = np.random.default_rng(3)
+    th0 = rng.uniform(-3, 3, (40, 2))
+    batch = mp.flip_times(DOUBLE, th0, t_max=5.0)
+    singles = np.array([mp.flip_times(DOUBLE, th0[i], t_max=5.0) for i in range(40)])
+    np.testing.assert_array_equal(batch, singles)
+
+
+def test_bad_chaos_input():
+    with pytest.raises(mp.InputError, match=r"k must be between 1 and 2N = 4, got 5"):
+        mp.lyapunov(DOUBLE, [1, 1], [0, 0], 10.0, k=5)
+    with pytest.raises(mp.InputError, match=r"link must be an integer in \[0, 2\) or None"):
+        mp.flip_times(DOUBLE, [1, 1], link=2)
+    with pytest.raises(mp.InputError, match="t_max must be > 0 and finite, got -1"):
+        mp.flip_times(DOUBLE, [1, 1], t_max=-1.0)
+    with pytest.raises(mp.InputError, match="lyapunov takes built-in torques only"):
+        mp.lyapunov(DOUBLE, [1, 1], [0, 0], 10.0, torque=lambda t: [0, 0])
