@@ -78,3 +78,24 @@ def test_bad_chaos_input():
         mp.flip_times(DOUBLE, [1, 1], t_max=-1.0)
     with pytest.raises(mp.InputError, match="lyapunov takes built-in torques only"):
         mp.lyapunov(DOUBLE, [1, 1], [0, 0], 10.0, torque=lambda t: [0, 0])
+
+
+def test_jacobian_matches_central_differences_of_the_right_hand_side():
+    chain = mp.Chain(lengths=[1.0, 0.7, 0.5], masses=[1.0, 2.0, 0.5], com=[0.6, 0.3, 0.5], inertia=[0.05, 0.1, 0.0])
+    x0 = np.array([0.3, -1.2, 2.0, 0.5, 2.0, -1.0])
+    f = lambda x: np.concatenate([x[3:], chain.accelerations(x[:3], x[3:])])  # noqa: E731
+    e = 1e-6
+    fd = np.stack([(f(x0 + e * d) - f(x0 - e * d)) / (2 * e) for d in np.eye(6)], axis=1)
+    np.testing.assert_allclose(chain.jacobian(x0[:3], x0[3:]), fd, atol=1e-7 * np.abs(fd).max())
+
+
+@pytest.mark.parametrize("top", [False, True])
+def test_linearisation_gives_the_equal_double_pendulum_modes(top):
+    # Hanging: omega^2 = (g/l)(2 -+ sqrt 2). Inverted: the same magnitudes, as growth rates.
+    g = 9.81
+    chain = mp.Chain([1.0, 1.0], [1.0, 1.0], g=g)
+    theta = [np.pi, np.pi] if top else [0.0, 0.0]
+    ev = np.linalg.eigvals(chain.jacobian(theta, [0, 0]))
+    squares = np.sort(np.unique(np.round((ev**2).real / g, 10)))
+    expected = np.array([2 - np.sqrt(2), 2 + np.sqrt(2)]) * (1 if top else -1)
+    np.testing.assert_allclose(np.sort(squares), np.sort(expected), rtol=1e-10)

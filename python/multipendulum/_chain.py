@@ -130,6 +130,16 @@ class Chain:
         out = self._c.accelerations(th.ravel(), om.ravel(), float(t), spec, joint, algorithm)
         return out.reshape(th.shape)
 
+    def jacobian(self, theta, omega, t=0.0, torque=None, joint_torque=None) -> np.ndarray:
+        """The exact Jacobian (2N, 2N) of ``(theta_dot, omega_dot)`` with respect to
+        ``(theta, omega)``, from the core's variational equations (torques taken as depending on
+        time only). At an equilibrium this is the linearisation used for normal modes and LQR."""
+        th, om = self._states(theta=theta, omega=omega)
+        if th.ndim != 1:
+            raise InputError(f"theta must have shape ({self.n},) for a Jacobian, got {th.shape}")
+        spec, joint = normalise_torque(torque, joint_torque, self.n)
+        return self._c.jacobian(th.tolist(), om.tolist(), float(t), spec, joint).reshape(2 * self.n, 2 * self.n)
+
     def hamilton(self, theta, p, t=0.0, torque=None, joint_torque=None):
         """Hamilton's equations: ``(theta_dot, p_dot)``, each of shape (..., N)."""
         th, pp = self._states(theta=theta, p=p)

@@ -275,6 +275,49 @@ impl PyChain {
         Ok(vec_out(py, out))
     }
 
+    /// The exact Jacobian of the Lagrangian right-hand side `(omega, theta_ddot)` with respect to
+    /// `(theta, omega)` (row-major 2N x 2N), from the variational equations; torques are taken as
+    /// depending on time only.
+    #[pyo3(signature = (theta, omega, t, torque_spec, joint))]
+    fn jacobian<'py>(
+        &self,
+        py: Python<'py>,
+        theta: Vec<f64>,
+        omega: Vec<f64>,
+        t: f64,
+        torque_spec: Option<Bound<'py, PyTuple>>,
+        joint: bool,
+    ) -> PyResult<Bound<'py, PyArray1<f64>>> {
+        let c = &self.inner;
+        let n = c.n();
+        let err = |e| to_py(py, e);
+        c.check_state("theta", &theta).map_err(err)?;
+        c.check_state("omega", &omega).map_err(err)?;
+        let slot = RefCell::new(None);
+        let mut src = torque(n, torque_spec.as_ref(), joint, &slot)?;
+        let mut ws = Workspace::new(n);
+        let (mut tau, mut acc) = (vec![0.0; n], vec![0.0; n]);
+        if src.active() {
+            src.eval(t, &theta, &omega, &mut tau).map_err(|e| torque_error(py, e, &slot))?;
+        }
+        let singular = |s: core::Singular| to_py(py, Error::integration(t, s.reason()));
+        c.accelerations_into(&theta, &omega, &tau, &mut acc, &mut ws).map_err(singular)?;
+        let m = 2 * n;
+        let mut jac = vec![0.0; m * m];
+        let (mut dir, mut col, mut scratch) = (vec![0.0; m], vec![0.0; n], vec![0.0; 6 * n]);
+        for j in 0..m {
+            dir.fill(0.0);
+            dir[j] = 1.0;
+            c.tangent_accelerations_into(&theta, &omega, &acc, &dir[..n], &dir[n..], &mut col, &mut scratch, &mut ws)
+                .map_err(singular)?;
+            for i in 0..n {
+                jac[i * m + j] = dir[n + i]; // d theta_dot / d(.) = d omega / d(.)
+                jac[(n + i) * m + j] = col[i];
+            }
+        }
+        Ok(vec_out(py, jac))
+    }
+
     /// `(theta_dot, p_dot)` of Hamilton's equations for each row.
     #[pyo3(signature = (theta, p, t, torque_spec, joint))]
     fn hamilton<'py>(
