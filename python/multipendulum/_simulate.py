@@ -17,6 +17,62 @@ METHOD_INFO = {name: dict(info) for name, info in _core.METHOD_INFO.items()}
 
 
 @dataclass(frozen=True)
+class Flip:
+    """Event: link ``link`` (None: any link) goes over the top, ``|theta| = pi``. Terminal by
+    default: the run stops there (``sol.stopped_at``)."""
+
+    link: object = None
+    direction: int = 1
+    terminal: bool = True
+
+    def _spec(self, n):
+        if self.link is not None and not (isinstance(self.link, (int, np.integer)) and 0 <= self.link < n):
+            raise InputError(f"Flip.link must be an integer in [0, {n}) or None, got {self.link!r}")
+        return ("flip", None if self.link is None else int(self.link), int(self.direction), bool(self.terminal))
+
+
+@dataclass(frozen=True)
+class Crossing:
+    """Event: ``theta . a + omega . b + constant`` crosses zero (``direction`` +1 upward, -1
+    downward, 0 both); recorded, or stopping the run when ``terminal``. ``theta``/``omega``: N
+    coefficients (default zeros). E.g. ``Crossing(theta=[1, 0])``: theta_1 passes 0 upward."""
+
+    theta: object = None
+    omega: object = None
+    constant: float = 0.0
+    direction: int = 1
+    terminal: bool = False
+
+    def _spec(self, n):
+        coef = []
+        for name, v in (("theta", self.theta), ("omega", self.omega)):
+            a = np.zeros(n) if v is None else np.asarray(v, dtype=np.float64)
+            if a.shape != (n,):
+                raise InputError(f"Crossing.{name} must have {n} coefficients (one per link), got shape {a.shape}")
+            coef.append(a.tolist())
+        return ("linear", coef[0], coef[1], float(self.constant), int(self.direction), bool(self.terminal))
+
+
+@dataclass(frozen=True)
+class EventRecord:
+    """The crossings of one event: times (K,), and theta, omega, p (K, N) there."""
+
+    t: np.ndarray
+    theta: np.ndarray
+    omega: np.ndarray
+    p: np.ndarray
+
+
+def _records(hits, count, n):
+    out = []
+    for i in range(count):
+        mine = [h for h in hits if h[0] == i]
+        stack = (lambda k: np.array([h[k] for h in mine]).reshape(len(mine), n))
+        out.append(EventRecord(np.array([h[1] for h in mine]), stack(2), stack(3), stack(4)))
+    return out
+
+
+@dataclass(frozen=True)
 class Stats:
     """Counters of a run (arrays of shape (B,) for a batch run)."""
 
@@ -42,8 +98,13 @@ class Solution:
     t = 0, so ``energy - energy[0] - work`` is the integrator's energy error.
     """
 
-    def __init__(self, chain, method, form, data, batch_shape, stats):
+    def __init__(self, chain, method, form, data, batch_shape, stats, n_events=0):
         self.chain, self.method, self.form, self.stats = chain, method, form, stats
+        per_run = [_records(h, n_events, chain.n) for h in data["events"]]
+        #: One :class:`EventRecord` per event given (a list of such lists for a batch run).
+        self.events = per_run if batch_shape else per_run[0]
+        #: The time a terminal event stopped the run, or None (a list for a batch run).
+        self.stopped_at = data["stopped_at"] if batch_shape else data["stopped_at"][0]
         self.t = data["t"]
         T, n = self.t.size, chain.n
         shape = batch_shape + (T,)
@@ -80,7 +141,7 @@ class Solution:
 
 def simulate(chain: Chain, theta0, omega0, t_end, method="dop853", dt=None, rtol=1e-10, atol=1e-12,
              torque=None, joint_torque=None, t_eval=None, form=None, adaptive=True,
-             max_steps=100_000_000, progress=None) -> Solution:
+             max_steps=100_000_000, progress=None, events=None) -> Solution:
     """Integrate ``chain`` from ``(theta0, omega0)`` at t = 0 to ``t_end`` (seconds).
 
     Methods (:data:`METHODS`): ``"rk4"`` classical Runge–Kutta, order 4, fixed ``dt``;
@@ -100,6 +161,9 @@ def simulate(chain: Chain, theta0, omega0, t_end, method="dop853", dt=None, rtol
     A leading batch axis on ``theta0``/``omega0`` (B, N) runs the B trajectories in parallel on
     all cores (GIL released); a Python torque function runs them one after another.
     ``progress``: optional ``callable(fraction)``, called about ten times a second.
+    ``events``: :class:`Flip` / :class:`Crossing` conditions, located by root finding on the
+    dense output; ``sol.events[i]`` holds event i's crossings, ``sol.stopped_at`` the time a
+    terminal one ended the run.
 
     Raises :class:`InputError` for bad input, :class:`IntegrationError` (with ``.t``) when the
     run cannot continue; a torque function's own exception passes through.
@@ -134,11 +198,16 @@ def simulate(chain: Chain, theta0, omega0, t_end, method="dop853", dt=None, rtol
     if not isinstance(max_steps, (int, np.integer)) or max_steps <= 0:
         raise InputError(f"max_steps must be a positive integer, got {max_steps!r}")
     spec, joint = normalise_torque(torque, joint_torque, chain.n)
+    events = list(events or [])
+    for e in events:
+        if not isinstance(e, (Flip, Crossing)):
+            raise InputError(f"events must be mp.Flip or mp.Crossing objects, got {type(e).__name__}")
+    event_specs = [e._spec(chain.n) for e in events]
     start = time.perf_counter()
     data = _core.simulate(chain._c, th0.ravel(), om0.ravel(), t_end, method, form, dt, rtol, atol,
-                          bool(adaptive), t_eval, int(max_steps), spec, joint, progress)
+                          bool(adaptive), t_eval, int(max_steps), spec, joint, progress, event_specs)
     wall = time.perf_counter() - start
     if progress is not None:
         progress(1.0)
     stats = Stats._from(data["stats"], bool(batch_shape), wall)
-    return Solution(chain, method, data["form"], data, batch_shape, stats)
+    return Solution(chain, method, data["form"], data, batch_shape, stats, len(events))

@@ -6,12 +6,14 @@
 pub mod chaos;
 pub mod dynamics;
 pub mod error;
+pub mod events;
 pub mod model;
 mod par;
 pub mod reference;
 
 pub use dynamics::{Singular, Workspace};
 pub use error::{Error, Result};
+pub use events::{Condition, EventSpec};
 pub use model::Chain;
 pub mod integrators;
 pub mod simulate;

@@ -4,6 +4,7 @@ use crate::par::*;
 
 use crate::dynamics::Workspace;
 use crate::error::{Error, Result};
+use crate::events::{EventSpec, Hit, Tracker};
 use crate::integrators::{dop853::Attempt, Dop853, FixedStep, Gauss, Method, Rk4};
 use crate::model::Chain;
 use crate::system::{ChainSystem, Form, OdeSystem};
@@ -26,6 +27,8 @@ pub struct Settings {
     /// Output times (ascending, within `[0, t_end]`); `None`: every step.
     pub t_eval: Option<Vec<f64>>,
     pub max_steps: u64,
+    /// Conditions whose zero crossings are recorded, or stop the run (terminal).
+    pub events: Vec<EventSpec>,
 }
 
 impl Default for Settings {
@@ -39,6 +42,7 @@ impl Default for Settings {
             adaptive: true,
             t_eval: None,
             max_steps: 100_000_000,
+            events: Vec::new(),
         }
     }
 }
@@ -66,6 +70,10 @@ pub struct Trajectory {
     pub work: Vec<f64>,
     pub stats: Stats,
     pub form: Form,
+    /// Event crossings in time order: `(event index, t, theta, omega, p)`.
+    pub events: Vec<(usize, f64, Vec<f64>, Vec<f64>, Vec<f64>)>,
+    /// The time a terminal event stopped the run, if one did.
+    pub stopped_at: Option<f64>,
 }
 
 impl Settings {
@@ -146,6 +154,7 @@ fn check_output_size(rows: f64, n: usize) -> Result<()> {
 struct Recorder {
     t: Vec<f64>,
     y: Vec<f64>,
+    stopped_at: Option<f64>,
 }
 
 impl Recorder {
@@ -187,12 +196,13 @@ fn run_fixed<S: OdeSystem, I: FixedStep>(
     t_eval: Option<&[f64]>,
     stats: &mut Stats,
     monitor: Monitor,
+    events: &mut Tracker,
 ) -> Result<Recorder> {
     let steps = fixed_steps(t_end, dt);
     let d = y.len();
     let mut rec = match t_eval {
-        Some(te) => Recorder { t: Vec::with_capacity(te.len()), y: Vec::with_capacity(te.len() * d) },
-        None => Recorder { t: Vec::with_capacity(steps as usize + 1), y: Vec::with_capacity((steps as usize + 1) * d) },
+        Some(te) => Recorder { t: Vec::with_capacity(te.len()), y: Vec::with_capacity(te.len() * d), stopped_at: None },
+        None => Recorder { t: Vec::with_capacity(steps as usize + 1), y: Vec::with_capacity((steps as usize + 1) * d), stopped_at: None },
     };
     let mut next_out = 0usize; // index into t_eval
     let (mut f0, mut f1, mut y0) = (vec![0.0; d], vec![0.0; d], vec![0.0; d]);
@@ -201,6 +211,8 @@ fn run_fixed<S: OdeSystem, I: FixedStep>(
     if t_eval.is_none() {
         rec.push(0.0, y);
     }
+    let mut y_start = vec![0.0; d];
+    events.start(y);
     for k in 0..steps {
         let t = k as f64 * dt;
         let t_next = if k + 1 == steps { t_end } else { (k + 1) as f64 * dt };
@@ -219,9 +231,39 @@ fn run_fixed<S: OdeSystem, I: FixedStep>(
             }
         }
         let interior = t_eval.is_some_and(|te| next_out < te.len() && te[next_out] < t_next - 1e-9 * h);
+        if events.active() {
+            y_start.copy_from_slice(y);
+        }
         stepper.step(sys, t, y, h)?;
         stats.steps += 1;
         check_state_finite(t_next, y)?;
+        if events.active() {
+            if events.detect(y) {
+                let (mut fa, mut fb) = (vec![0.0; d], vec![0.0; d]);
+                sys.rhs(t, &y_start, &mut fa)?;
+                sys.rhs(t_next, y, &mut fb)?;
+                let y_end = y.to_vec();
+                let stop = events.locate(t, h, |x, out| {
+                    hermite(&y_start, &fa, &y_end, &fb, h, x, out);
+                    Ok(())
+                }, d)?;
+                if let Some((te, ye)) = stop {
+                    if let Some(tv) = t_eval {
+                        while next_out < tv.len() && tv[next_out] <= te {
+                            hermite(&y_start, &fa, &y_end, &fb, h, (tv[next_out] - t) / h, &mut out);
+                            rec.push(tv[next_out], &out);
+                            next_out += 1;
+                        }
+                    }
+                    rec.push(te, &ye);
+                    y.copy_from_slice(&ye);
+                    rec.stopped_at = Some(te);
+                    return Ok(rec);
+                }
+            } else {
+                events.accept();
+            }
+        }
         f0_valid = false;
         if interior {
             let te = t_eval.unwrap();
@@ -249,6 +291,7 @@ fn run_fixed<S: OdeSystem, I: FixedStep>(
     Ok(rec)
 }
 
+#[allow(clippy::too_many_arguments)]
 fn run_dop853<S: OdeSystem>(
     sys: &mut S,
     settings: &Settings,
@@ -256,11 +299,13 @@ fn run_dop853<S: OdeSystem>(
     t_end: f64,
     stats: &mut Stats,
     monitor: Monitor,
+    events: &mut Tracker,
 ) -> Result<Recorder> {
     let d = y.len();
     let mut rk = Dop853::new(d, settings.rtol, settings.atol);
+    events.start(y);
     let t_eval = settings.t_eval.as_deref();
-    let mut rec = Recorder { t: Vec::new(), y: Vec::new() };
+    let mut rec = Recorder { t: Vec::new(), y: Vec::new(), stopped_at: None };
     let mut next_out = 0usize;
     rk.start(sys, 0.0, y)?;
     let fixed = !settings.adaptive;
@@ -301,8 +346,31 @@ fn run_dop853<S: OdeSystem>(
             Attempt::Accepted { h_next } => {
                 check_state_finite(t + h_try, &y_new)?;
                 let t_new = if last { t_end } else { t + h_try };
-                let dense = t_eval.is_some_and(|te| next_out < te.len() && te[next_out] < t_new);
+                let crossing = events.active() && events.detect(&y_new);
+                let dense = crossing || t_eval.is_some_and(|te| next_out < te.len() && te[next_out] < t_new);
                 rk.finish_step(sys, t, y, &y_new, h_try, dense)?;
+                if crossing {
+                    let stop = events.locate(t, h_try, |x, out| {
+                        rk.interpolate(y, x, out);
+                        Ok(())
+                    }, d)?;
+                    if let Some((te, ye)) = stop {
+                        if let Some(tv) = t_eval {
+                            while next_out < tv.len() && tv[next_out] <= te {
+                                rk.interpolate(y, (tv[next_out] - t) / h_try, &mut out);
+                                rec.push(tv[next_out], &out);
+                                next_out += 1;
+                            }
+                        }
+                        stats.steps += 1;
+                        rec.push(te, &ye);
+                        y.copy_from_slice(&ye);
+                        rec.stopped_at = Some(te);
+                        return Ok(rec);
+                    }
+                } else if events.active() {
+                    events.accept();
+                }
                 if let Some(te) = t_eval {
                     while next_out < te.len() && te[next_out] < t_new {
                         rk.interpolate(y, (te[next_out] - t) / h_try, &mut out);
@@ -354,6 +422,9 @@ pub fn simulate<T: TorqueSource>(
     check_output_size(rows as f64, chain.n())?;
     let form = settings.resolved_form()?;
     let n = chain.n();
+    for e in &settings.events {
+        e.validate(n)?;
+    }
     let mut sys = ChainSystem::new(chain, torque, form);
     let mut ws = Workspace::new(n);
     let mut y = vec![0.0; sys.dim()];
@@ -364,22 +435,25 @@ pub fn simulate<T: TorqueSource>(
     }
     let mut stats = Stats::default();
     let t_eval = settings.t_eval.as_deref();
+    let mut tracker = Tracker::new(&settings.events, chain, form);
+    let dt = settings.dt.unwrap_or(0.0);
     let rec = match settings.method {
-        Method::Rk4 => run_fixed(&mut sys, &mut Rk4::new(y.len()), &mut y, t_end, settings.dt.unwrap(), t_eval, &mut stats, monitor)?,
+        Method::Rk4 => run_fixed(&mut sys, &mut Rk4::new(y.len()), &mut y, t_end, dt, t_eval, &mut stats, monitor, &mut tracker)?,
         Method::Gauss4 | Method::Gauss6 => {
             let mut g = Gauss::new(settings.method.order() as usize / 2, y.len());
-            let rec = run_fixed(&mut sys, &mut g, &mut y, t_end, settings.dt.unwrap(), t_eval, &mut stats, monitor)?;
+            let rec = run_fixed(&mut sys, &mut g, &mut y, t_end, dt, t_eval, &mut stats, monitor, &mut tracker)?;
             stats.iterations = g.iterations;
             rec
         }
-        Method::Dop853 => run_dop853(&mut sys, settings, &mut y, t_end, &mut stats, monitor)?,
+        Method::Dop853 => run_dop853(&mut sys, settings, &mut y, t_end, &mut stats, monitor, &mut tracker)?,
     };
     stats.evaluations = sys.evaluations;
-    Ok(finish(chain, form, sys.tracks_work(), rec, stats, &mut ws))
+    let hits = std::mem::take(&mut tracker.hits);
+    Ok(finish(chain, form, sys.tracks_work(), rec, hits, stats, &mut ws))
 }
 
 /// Turn raw ODE states into theta, omega, p, energy and work rows.
-fn finish(chain: &Chain, form: Form, work: bool, rec: Recorder, mut stats: Stats, ws: &mut Workspace) -> Trajectory {
+fn finish(chain: &Chain, form: Form, work: bool, rec: Recorder, hits: Vec<Hit>, mut stats: Stats, ws: &mut Workspace) -> Trajectory {
     let n = chain.n();
     let d = 2 * n + usize::from(work);
     let rows = rec.t.len();
@@ -393,6 +467,8 @@ fn finish(chain: &Chain, form: Form, work: bool, rec: Recorder, mut stats: Stats
         t: rec.t,
         stats: Stats::default(),
         form,
+        events: Vec::with_capacity(hits.len()),
+        stopped_at: rec.stopped_at,
     };
     let mut scratch = vec![0.0; n];
     for r in 0..rows {
@@ -416,6 +492,23 @@ fn finish(chain: &Chain, form: Form, work: bool, rec: Recorder, mut stats: Stats
         let energy = chain.kinetic_energy(theta, omega, &mut scratch, ws) + chain.potential_energy(theta);
         tr.energy.push(energy);
         tr.work.push(if work { y[2 * n] } else { 0.0 });
+    }
+    for hit in hits {
+        let theta = hit.y[..n].to_vec();
+        let (mut omega, mut p) = (vec![0.0; n], vec![0.0; n]);
+        match form {
+            Form::Lagrangian => {
+                omega.copy_from_slice(&hit.y[n..2 * n]);
+                chain.momenta_into(&theta, &omega, &mut p, ws);
+            }
+            Form::Hamiltonian => {
+                p.copy_from_slice(&hit.y[n..2 * n]);
+                if chain.velocities_into(&theta, &p, &mut omega, ws).is_err() {
+                    omega.fill(f64::NAN);
+                }
+            }
+        }
+        tr.events.push((hit.event, hit.t, theta, omega, p));
     }
     if let Some(&e0) = tr.energy.first() {
         let scale = if e0 != 0.0 { e0.abs() } else { 1.0 };

@@ -497,13 +497,44 @@ fn trajectories_out<'py>(py: Python<'py>, trs: Trajectories) -> PyResult<Bound<'
     d.set_item("p", vec_out(py, take(&mut trs, |t| std::mem::take(&mut t.p))))?;
     d.set_item("energy", vec_out(py, take(&mut trs, |t| std::mem::take(&mut t.energy))))?;
     d.set_item("work", vec_out(py, take(&mut trs, |t| std::mem::take(&mut t.work))))?;
+    let events = pyo3::types::PyList::empty(py);
+    let stopped = pyo3::types::PyList::empty(py);
+    for tr in trs.iter_mut() {
+        let hits = pyo3::types::PyList::empty(py);
+        for (i, t, theta, omega, p) in std::mem::take(&mut tr.events) {
+            hits.append((i, t, vec_out(py, theta), vec_out(py, omega), vec_out(py, p)))?;
+        }
+        events.append(hits)?;
+        stopped.append(tr.stopped_at)?;
+    }
+    d.set_item("events", events)?;
+    d.set_item("stopped_at", stopped)?;
     Ok(d)
+}
+
+/// An event from the Python layer's normalised spec: `("flip", link | None, direction, terminal)`
+/// or `("linear", theta_coefficients, omega_coefficients, constant, direction, terminal)`.
+fn event_spec(spec: &Bound<'_, PyTuple>) -> PyResult<core::EventSpec> {
+    let kind: String = spec.get_item(0)?.extract()?;
+    let (condition, rest) = match kind.as_str() {
+        "flip" => (core::Condition::Flip(spec.get_item(1)?.extract()?), 2),
+        "linear" => (
+            core::Condition::Linear {
+                theta: spec.get_item(1)?.extract()?,
+                omega: spec.get_item(2)?.extract()?,
+                constant: spec.get_item(3)?.extract()?,
+            },
+            4,
+        ),
+        other => return Err(InputError::new_err(format!("unknown event kind {other:?}"))),
+    };
+    Ok(core::EventSpec { condition, direction: spec.get_item(rest)?.extract()?, terminal: spec.get_item(rest + 1)?.extract()? })
 }
 
 /// Integrate B >= 1 initial states (rows of flat `theta0`, `omega0`). Built-in torques run on
 /// all cores with the GIL released; a Python torque function runs the rows in turn, holding it.
 #[pyfunction]
-#[pyo3(signature = (chain, theta0, omega0, t_end, method, form, dt, rtol, atol, adaptive, t_eval, max_steps, torque_spec, joint, progress))]
+#[pyo3(signature = (chain, theta0, omega0, t_end, method, form, dt, rtol, atol, adaptive, t_eval, max_steps, torque_spec, joint, progress, events=None))]
 #[allow(clippy::too_many_arguments)]
 fn simulate<'py>(
     py: Python<'py>,
@@ -522,6 +553,7 @@ fn simulate<'py>(
     torque_spec: Option<Bound<'py, PyTuple>>,
     joint: bool,
     progress: Option<Py<PyAny>>,
+    events: Option<Vec<Bound<'py, PyTuple>>>,
 ) -> PyResult<Bound<'py, pyo3::types::PyDict>> {
     let c = &chain.inner;
     let n = c.n();
@@ -541,6 +573,7 @@ fn simulate<'py>(
         adaptive,
         t_eval: t_eval.as_ref().map(|a| slice("t_eval", a).map(<[f64]>::to_vec)).transpose()?,
         max_steps,
+        events: events.unwrap_or_default().iter().map(event_spec).collect::<PyResult<_>>()?,
     };
     let (theta0, omega0) = (slice("theta0", &theta0)?, slice("omega0", &omega0)?);
     let b = rows("theta0", theta0.len(), n)?;
