@@ -99,3 +99,20 @@ def test_linearisation_gives_the_equal_double_pendulum_modes(top):
     squares = np.sort(np.unique(np.round((ev**2).real / g, 10)))
     expected = np.array([2 - np.sqrt(2), 2 + np.sqrt(2)]) * (1 if top else -1)
     np.testing.assert_allclose(np.sort(squares), np.sort(expected), rtol=1e-10)
+
+
+def test_ensemble_keeps_final_states_and_reductions_equal_to_single_runs():
+    rng = np.random.default_rng(7)
+    th0 = rng.uniform(-2.5, 2.5, (12, 2))
+    om0 = rng.uniform(-1, 1, (12, 2))
+    ens = mp.ensemble(DOUBLE, th0, om0, t_end=8.0)
+    assert ens.theta.shape == (12, 2) and ens.first_flip.shape == (12,)
+    for b in (0, 5, 11):
+        single = mp.simulate(DOUBLE, th0[b], om0[b], 8.0, t_eval=[8.0])
+        np.testing.assert_array_equal(ens.theta[b], single.theta[-1])
+        assert ens.energy_error[b] == single.stats.energy_error
+    # First flips agree with the dedicated flip kernel to the accuracy of its rk4 steps.
+    flips = mp.flip_times(DOUBLE, th0, om0, t_max=8.0, dt=0.001)
+    np.testing.assert_array_equal(np.isfinite(ens.first_flip), np.isfinite(flips))
+    both = np.isfinite(flips)
+    assert both.any() and np.max(np.abs(ens.first_flip[both] - flips[both])) < 1e-6

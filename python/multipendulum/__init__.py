@@ -11,7 +11,7 @@ from importlib.metadata import PackageNotFoundError, version as _version
 from ._chain import Chain
 from ._simulate import METHOD_INFO, METHODS, Crossing, EventRecord, Flip, Solution, Stats, simulate
 from ._torque import Sinusoid, Table
-from .chaos import FlipMap, LyapunovResult, PoincareSection, plot_poincare, poincare, flip_energy_threshold, flip_map, flip_times, lyapunov, trustworthy_until
+from .chaos import EnsembleResult, FlipMap, LyapunovResult, ensemble, PoincareSection, plot_poincare, poincare, flip_energy_threshold, flip_map, flip_times, lyapunov, trustworthy_until
 from .errors import InputError, IntegrationError
 
 try:
@@ -22,7 +22,7 @@ except PackageNotFoundError:  # pragma: no cover - running from a source tree wi
 __all__ = [
     "Chain", "simulate", "Solution", "Stats", "Flip", "Crossing", "EventRecord", "METHODS", "METHOD_INFO", "Sinusoid", "Table",
     "InputError", "IntegrationError", "__version__",
-    "poincare", "PoincareSection", "plot_poincare", "lyapunov", "LyapunovResult", "trustworthy_until", "flip_energy_threshold", "flip_times", "flip_map", "FlipMap",
+    "ensemble", "EnsembleResult", "poincare", "PoincareSection", "plot_poincare", "lyapunov", "LyapunovResult", "trustworthy_until", "flip_energy_threshold", "flip_times", "flip_map", "FlipMap",
 ]
 
 
