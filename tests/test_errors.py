@@ -142,3 +142,9 @@ def test_max_steps_stops_a_run_that_would_not_finish():
 def test_a_run_that_would_not_fit_in_memory_is_refused_with_advice():
     with pytest.raises(mp.InputError, match=r"needs [0-9.]+ GiB .* ask for fewer with t_eval"):
         mp.simulate(mp.Chain(lengths=[1.0] * 100, masses=[1.0] * 100), [0.0] * 100, [0.0] * 100, 1e9, method="rk4", dt=1.0)
+
+
+def test_reference_routes_refuse_sizes_that_would_hang():
+    chain = mp.Chain([1.0] * 13, [1.0] * 13)
+    with pytest.raises(mp.InputError, match=r"algorithm 'cramer' is a reference route for N <= 12, got N = 13"):
+        chain.accelerations([0.0] * 13, [0.0] * 13, algorithm="cramer")

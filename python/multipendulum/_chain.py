@@ -8,6 +8,8 @@ from ._torque import normalise_torque
 from .errors import InputError
 
 ALGORITHMS = ("recursive", "cholesky", "cramer")
+# The reference routes cost O(N^4) (Cramer) and O(N^3) (dense Cholesky): refuse sizes that would hang.
+REFERENCE_LIMITS = {"cramer": 12, "cholesky": 2000}
 
 
 def as_state(x, name: str, n: int) -> np.ndarray:
@@ -127,6 +129,10 @@ class Chain:
         spec, joint = normalise_torque(torque, joint_torque, self.n)
         if algorithm not in ALGORITHMS:
             raise InputError(f"algorithm must be one of {', '.join(ALGORITHMS)}, got {algorithm!r}")
+        limit = REFERENCE_LIMITS.get(algorithm)
+        if limit is not None and self.n > limit:
+            raise InputError(f"algorithm {algorithm!r} is a reference route for N <= {limit}, got N = {self.n}; "
+                             "use the default \"recursive\" (O(N))")
         out = self._c.accelerations(th.ravel(), om.ravel(), float(t), spec, joint, algorithm)
         return out.reshape(th.shape)
 
