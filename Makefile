@@ -4,16 +4,26 @@
 VENV    ?= .venv
 PY      := $(VENV)/bin/python
 OUT     ?= out/demo
+WASM_TARGET := wasm32-unknown-unknown
+WEB     := python/multipendulum/web
+CHROMIUM ?= /usr/bin/chromium
 export PATH := $(HOME)/.cargo/bin:$(PATH)
 
-.PHONY: setup build demo test test-rust test-python bench clean
+.PHONY: setup build wasm browser demo test test-rust test-python bench clean
 
 $(PY):
 	python3 -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip maturin
 
+# The browser viewer's engine: the core compiled to WebAssembly, copied next to the page.
+wasm:
+	@if command -v rustup >/dev/null; then rustup target add $(WASM_TARGET); \
+	else echo "note: no rustup; the $(WASM_TARGET) target must already be installed"; fi
+	cargo build --release -p multipendulum-wasm --target $(WASM_TARGET)
+	cp target/$(WASM_TARGET)/release/multipendulum_wasm.wasm $(WEB)/multipendulum.wasm
+
 # maturin is incremental (cargo caches), so every make rebuilds only what changed.
-build: $(PY)
+build: $(PY) wasm
 	VIRTUAL_ENV=$(abspath $(VENV)) $(VENV)/bin/maturin develop --release --extras test -q
 
 setup: build
@@ -21,10 +31,23 @@ setup: build
 demo: setup
 	$(VENV)/bin/multipendulum demo -o $(OUT)
 
-test-rust:
-	cargo test --release -p multipendulum-core -q
+# The viewer's browser tests drive Debian's chromium with Playwright (never `playwright install`).
+# Without root or network they are skipped, and say why.
+browser: $(PY)
+	@if [ ! -x $(CHROMIUM) ]; then \
+	  if [ "$$(id -u)" = 0 ]; then SUDO=; elif sudo -n true 2>/dev/null; then SUDO=sudo; else SUDO=none; fi; \
+	  if [ "$$SUDO" != none ] && command -v apt-get >/dev/null; then \
+	    $$SUDO apt-get update -q && $$SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -q chromium \
+	      || echo "note: could not install chromium; the browser tests will be skipped"; \
+	  else echo "note: $(CHROMIUM) is missing and cannot be installed here; the browser tests will be skipped"; fi; \
+	fi
+	@$(PY) -c "import playwright" 2>/dev/null || $(PY) -m pip install -q playwright \
+	  || echo "note: could not install playwright; the browser tests will be skipped"
 
-test-python: setup
+test-rust:
+	cargo test --release -p multipendulum-core -p multipendulum-wasm -q
+
+test-python: setup browser
 	$(PY) -m pytest -q
 
 test: test-rust test-python
@@ -33,4 +56,4 @@ bench: setup
 	$(PY) bench/bench_engine.py
 
 clean:
-	rm -rf $(VENV) target out
+	rm -rf $(VENV) target out $(WEB)/multipendulum.wasm

@@ -14,6 +14,8 @@ use crate::simulate::Settings;
 use crate::system::{ChainSystem, Form, OdeSystem, NON_FINITE};
 use crate::torque::TorqueSource;
 
+// One per stepper, so the size of the largest variant costs nothing worth a box.
+#[allow(clippy::large_enum_variant)]
 enum Integrator {
     Rk4(Rk4),
     Gauss(Gauss),

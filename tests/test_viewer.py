@@ -1,0 +1,556 @@
+"""The browser viewer: its server (plain Python) and the page in a real headless chromium.
+
+The server tests check what `multipendulum serve` promises: 127.0.0.1 by default, only the
+viewer's own files (no path traversal, however encoded), every parameter checked. The browser
+tests drive Debian's chromium with Playwright: the page loads cleanly, the pendulum moves, the
+energy readout stays at the integrator's accuracy, bad input is refused with a message, a
+scenario loads, the URL shares the setup, and one step of the WebAssembly engine equals the
+Python package's to 1e-12.
+
+Without chromium or Playwright (`make test` installs both when it can) the browser tests are
+skipped with the reason; with MULTIPENDULUM_REQUIRE_BROWSER=1 (CI) they fail instead.
+"""
+import http.client
+import io
+import json
+import math
+import os
+import re
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import multipendulum as mp
+from multipendulum.cli import main
+from multipendulum.scenario import load_scenario
+from multipendulum.viewer import WASM_NAME, make_server, parse_host, parse_port, web_dir
+
+ROOT = Path(__file__).resolve().parents[1]
+CHROMIUM = os.environ.get("MULTIPENDULUM_CHROMIUM", "/usr/bin/chromium")
+CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                 "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+
+
+# ----------------------------------------------------------------------------------------------
+# The server
+
+
+@pytest.fixture
+def serve():
+    """Start a viewer server in a thread; yields a function making one (stopped afterwards)."""
+    servers = []
+
+    def start(**kwargs):
+        server = make_server(port=0, quiet=True, **kwargs)
+        threading.Thread(target=server.serve_forever, daemon=True).start()
+        servers.append(server)
+        return server
+
+    yield start
+    for server in servers:
+        server.shutdown()
+        server.server_close()
+
+
+def request(server, path, method="GET", host=None):
+    """A raw request: the path is sent exactly as given (no client-side normalisation)."""
+    addr, port = server.server_address[:2]
+    conn = http.client.HTTPConnection(addr, port, timeout=10)
+    conn.putrequest(method, path, skip_host=True, skip_accept_encoding=True)
+    conn.putheader("Host", host or f"{addr}:{port}")
+    conn.endheaders()
+    resp = conn.getresponse()
+    body = resp.read()
+    conn.close()
+    return resp.status, dict(resp.getheaders()), body
+
+
+@pytest.fixture
+def fake_web(tmp_path):
+    """A web directory with a secret next to it and things inside it that must not be served."""
+    root = tmp_path / "web"
+    root.mkdir()
+    (root / "index.html").write_text("<!doctype html><title>fake</title>")
+    (root / WASM_NAME).write_bytes(b"\0asm\1\0\0\0")
+    (root / "viewer.js").write_text("export {};")
+    (root / "notes.py").write_text("SECRET = 'py'")
+    (root / ".hidden.js").write_text("SECRET")
+    (root / "sub").mkdir()
+    (root / "sub" / "inner.js").write_text("SECRET")
+    (tmp_path / "secret.txt").write_text("SECRET")
+    return root
+
+
+def test_binds_127_0_0_1_by_default(serve, fake_web):
+    server = serve(root=fake_web)
+    assert server.socket.getsockname()[0] == "127.0.0.1"
+    assert server.url.startswith("http://127.0.0.1:")
+    args = __import__("multipendulum.cli", fromlist=["build_parser"]).build_parser().parse_args(["serve"])
+    assert args.host == "127.0.0.1"
+
+
+TRAVERSALS = [
+    "/../secret.txt", "/..%2fsecret.txt", "/..%2Fsecret.txt", "/%2e%2e/secret.txt", "/%2e%2e%2fsecret.txt",
+    "/..%5csecret.txt", "/....//secret.txt", "/%252e%252e%252fsecret.txt", "/.%2e/secret.txt",
+    "//etc/passwd", "/%2fetc%2fpasswd", "/etc/passwd", "/../../../../../../etc/passwd",
+    "/..%2f..%2f..%2f..%2f..%2f..%2fetc%2fpasswd", "/sub/inner.js", "/sub%2finner.js", "/notes.py",
+    "/.hidden.js", "/index.html%00.js", "/./viewer.js/../../secret.txt", "http://127.0.0.1/../secret.txt",
+]
+
+
+@pytest.mark.parametrize("path", TRAVERSALS)
+def test_serves_nothing_outside_its_own_files(serve, fake_web, path):
+    server = serve(root=fake_web)
+    status, _, body = request(server, path)
+    assert status == 404, (path, status)
+    assert b"SECRET" not in body and b"root:" not in body
+
+
+def test_absolute_paths_of_real_files_are_not_served(serve, fake_web):
+    server = serve(root=fake_web)
+    for target in (fake_web.parent / "secret.txt", fake_web / "index.html", Path("/etc/passwd")):
+        for path in (str(target), "/" + str(target), str(target).replace("/", "%2f")):
+            status, _, body = request(server, path)
+            assert status == 404 and b"SECRET" not in body, (path, status)
+
+
+def test_serves_its_files_with_their_types_and_a_strict_policy(serve, fake_web):
+    server = serve(root=fake_web)
+    status, headers, body = request(server, "/")
+    assert status == 200 and body.startswith(b"<!doctype html>")
+    assert headers["Content-Type"] == "text/html; charset=utf-8"
+    assert "default-src 'self'" in headers["Content-Security-Policy"]
+    assert headers["X-Content-Type-Options"] == "nosniff"
+    status, headers, body = request(server, f"/{WASM_NAME}?v=1")
+    assert (status, headers["Content-Type"], body) == (200, "application/wasm", b"\0asm\1\0\0\0")
+    status, headers, body = request(server, "/viewer.js", method="HEAD")
+    assert status == 200 and body == b"" and headers["Content-Type"].startswith("text/javascript")
+    assert request(server, "/viewer.js", method="POST")[0] == 501
+    assert request(server, "/scenario.json")[0] == 404  # none without a scenario
+
+
+def test_refuses_foreign_host_headers(serve, fake_web):
+    """A page elsewhere cannot reach the viewer through a DNS name rebound to 127.0.0.1."""
+    server = serve(root=fake_web)
+    assert request(server, "/", host="evil.example:80")[0] == 403
+    assert request(server, "/", host=f"localhost:{server.server_address[1]}")[0] == 200
+
+
+def test_serves_a_checked_scenario_as_json(serve, fake_web):
+    scenario = load_scenario(ROOT / "examples" / "triple.toml")
+    server = serve(root=fake_web, scenario=scenario)
+    status, headers, _ = request(server, "/")
+    assert status == 302 and headers["Location"] == "/?scenario=scenario.json"
+    status, headers, body = request(server, "/scenario.json")
+    assert status == 200 and headers["Content-Type"] == "application/json"
+    data = json.loads(body)
+    assert data["name"] == "Triple pendulum" and data["method"] == "gauss6" and data["dt"] == 0.002
+    np.testing.assert_allclose(data["theta"], np.radians([90, 120, 150]), rtol=1e-15)
+    assert data["lengths"] == [1.0, 1.0, 1.0] and data["kind"] == "points" and data["notes"] == []
+    driven = json.loads(request(serve(root=fake_web, scenario=load_scenario(ROOT / "examples" / "driven_rod.toml")),
+                                "/scenario.json")[2])
+    assert "torque" in driven["notes"][0]
+
+
+@pytest.mark.parametrize("value, message", [
+    ("-1", "port must be a whole number from 0 to 65535, got -1"),
+    ("65536", "port must be a whole number from 0 to 65535, got 65536"),
+    ("8e3", "port must be a whole number from 0 to 65535, got '8e3'"),
+    ("", "port must be a whole number from 0 to 65535, got ''"),
+])
+def test_bad_ports_are_refused(value, message):
+    with pytest.raises(mp.InputError, match=re.escape(message)):
+        parse_port(value)
+
+
+def test_hosts_must_be_addresses():
+    assert parse_host("localhost") == "127.0.0.1"
+    assert parse_host("::1") == "::1"
+    for bad in ("example.com", "127.0.0.1; rm -rf /", "", "999.1.1.1"):
+        with pytest.raises(mp.InputError, match="host must be an IP address"):
+            parse_host(bad)
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["serve", "--port", "70000"], "port must be a whole number from 0 to 65535, got 70000"),
+    (["serve", "--host", "example.com"], "host must be an IP address"),
+    (["serve", "missing.toml"], "missing.toml"),
+])
+def test_serve_refuses_bad_arguments(capsys, argv, message):
+    assert main(argv) == 1
+    assert message in capsys.readouterr().err
+
+
+def test_a_missing_build_is_reported(tmp_path):
+    (tmp_path / "index.html").write_text("")
+    with pytest.raises(mp.InputError, match=r"multipendulum\.wasm is missing \(run `make build`\)"):
+        make_server(root=tmp_path)
+
+
+def test_the_serve_command_prints_its_address_and_serves(tmp_path):
+    if not (web_dir() / WASM_NAME).exists():
+        pytest.fail(f"{web_dir() / WASM_NAME} is missing: run `make build`")
+    proc = subprocess.Popen([sys.executable, "-m", "multipendulum", "serve", "--port", "0", "-q"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = proc.stdout.readline()
+        m = re.match(r"multipendulum viewer at http://127\.0\.0\.1:(\d+)/ ", line)
+        assert m, line
+        conn = http.client.HTTPConnection("127.0.0.1", int(m.group(1)), timeout=10)
+        conn.request("GET", "/index.html")
+        resp = conn.getresponse()
+        assert resp.status == 200 and b"multipendulum viewer" in resp.read()
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+
+
+# ----------------------------------------------------------------------------------------------
+# The page in chromium
+
+
+def _browser_missing():
+    if not os.access(CHROMIUM, os.X_OK):
+        return f"{CHROMIUM} is not installed (make test installs Debian's chromium as root)"
+    try:
+        import playwright.sync_api  # noqa: F401
+    except ImportError:
+        return "Playwright for Python is not installed (make test pip-installs it into .venv)"
+    return None
+
+
+@pytest.fixture(scope="module")
+def browser():
+    reason = _browser_missing()
+    if reason:
+        if os.environ.get("MULTIPENDULUM_REQUIRE_BROWSER"):
+            pytest.fail(f"browser tests required but {reason}")
+        pytest.skip(reason)
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as pw:
+        b = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS, headless=True)
+        yield b
+        b.close()
+
+
+@pytest.fixture(scope="module")
+def site():
+    """The real viewer files, served as `multipendulum serve` does."""
+    if not (web_dir() / WASM_NAME).exists():
+        pytest.fail(f"{web_dir() / WASM_NAME} is missing: run `make build`")
+    server = make_server(port=0, quiet=True)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    yield server
+    server.shutdown()
+    server.server_close()
+
+
+class Page:
+    """A page with its console errors collected."""
+
+    def __init__(self, browser, url):
+        self.context = browser.new_context(viewport={"width": 1200, "height": 900})
+        self.page = self.context.new_page()
+        self.errors = []
+        self.page.on("console", lambda m: m.type == "error" and self.errors.append(m.text))
+        self.page.on("pageerror", lambda e: self.errors.append(str(e)))
+        self.page.goto(url)
+        self.page.wait_for_selector("body[data-ready=true]", timeout=15000)
+
+    def js(self, expr, arg=None):
+        return self.page.evaluate(expr, arg)
+
+    def wait(self, expr, timeout=15.0):
+        """Poll `expr` until true (not wait_for_function: the page's policy forbids its eval)."""
+        for _ in range(int(timeout / 0.05)):
+            if self.js(expr):
+                return
+            self.page.wait_for_timeout(50)
+        raise AssertionError(f"timed out waiting for {expr}")
+
+    @property
+    def t(self):
+        return self.js("multipendulum.state.sim.t")
+
+    def set(self, name, value):
+        """Type into a field as a user does: the page applies it on change."""
+        self.page.fill(f"[name={name}]", str(value))
+        self.page.locator(f"[name={name}]").dispatch_event("change")
+
+    def message(self):
+        loc = self.page.locator("#message")
+        return loc.inner_text() if loc.is_visible() else ""
+
+    def close(self):
+        self.context.close()
+
+
+@pytest.fixture
+def open_page(browser, site):
+    pages = []
+
+    def opener(query=""):
+        p = Page(browser, site.url + query)
+        pages.append(p)
+        return p
+
+    yield opener
+    for p in pages:
+        p.close()
+
+
+def _canvas(page):
+    from PIL import Image
+
+    return np.asarray(Image.open(io.BytesIO(page.page.locator("#view").screenshot())).convert("RGB")).astype(int)
+
+
+def _bob_centre(pixels, rgb):
+    """Centre of the pixels of one bob's colour."""
+    mask = np.all(np.abs(pixels - np.array(rgb)) <= 6, axis=-1)
+    ys, xs = np.nonzero(mask)
+    assert len(xs) > 20, "the bob is not on the canvas"
+    return np.array([xs.mean(), ys.mean()])
+
+
+def test_page_loads_and_runs_with_no_console_errors(open_page):
+    p = open_page()
+    assert p.page.title() == "multipendulum viewer"
+    p.page.click("#play")
+    p.wait("multipendulum.state.sim.t > 0.5")
+    p.page.click("#play")
+    assert p.errors == []
+    assert p.message() == ""
+
+
+def test_the_page_works_from_any_static_file_server(browser):
+    """Python's plain http.server, with none of `multipendulum serve`'s own headers."""
+    import functools
+    from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
+
+    class Quiet(SimpleHTTPRequestHandler):
+        def log_message(self, *args):
+            pass
+
+    server = ThreadingHTTPServer(("127.0.0.1", 0), functools.partial(Quiet, directory=str(web_dir())))
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    try:
+        p = Page(browser, f"http://127.0.0.1:{server.server_address[1]}/index.html")
+        p.page.click("#play")
+        p.wait("multipendulum.state.sim.t > 0.3")
+        assert p.errors == [] and p.message() == ""
+        p.close()
+    finally:
+        server.shutdown()
+        server.server_close()
+
+
+def test_the_pendulum_moves(open_page):
+    import colorsys
+
+    p = open_page()
+    # The outer bob's colour, as the page draws it: hsl(22, 62%, 45%).
+    tip = [round(255 * c) for c in colorsys.hls_to_rgb(22 / 360, 0.45, 0.62)]
+    before = _canvas(p)
+    p.page.click("#play")
+    p.wait("multipendulum.state.sim.t > 0.4")
+    p.page.click("#play")
+    after = _canvas(p)
+    changed = np.any(before != after, axis=-1).mean()
+    assert changed > 0.001, f"only {changed:.2%} of the pixels changed"
+    moved = np.linalg.norm(_bob_centre(after, tip) - _bob_centre(before, tip))
+    assert moved > 20, f"the outer bob moved {moved:.1f} px"
+    assert p.js("document.getElementById('t').textContent") != "0.000 s"
+
+
+@pytest.mark.parametrize("method, query", [
+    ("dop853", "method=dop853&tol=1e-10&atol=1e-12"),
+    ("gauss6", "method=gauss6&dt=0.002"),
+], ids=["dop853", "gauss6"])
+def test_energy_readout_stays_at_the_integrators_accuracy_for_10_s(open_page, method, query):
+    """The page's readout over 10 s of the chaotic double pendulum, against the same integrator
+    run by the Python package (all steps), and for dop853 against its tolerance."""
+    p = open_page(f"?n=2&lengths=1&masses=1&theta=130,160&speed=4&{query}")
+    settings = dict(method="dop853", rtol=1e-10, atol=1e-12) if method == "dop853" else dict(method="gauss6", dt=0.002)
+    ref = mp.simulate(mp.Chain([1, 1], [1, 1]), np.radians([130, 160]), [0, 0], 10.0, **settings)
+    bound = 10 * ref.stats.energy_error
+    if method == "dop853":
+        bound = min(bound, 100 * 1e-10)
+    p.page.click("#play")
+    readouts = []
+    while p.t < 10.0:
+        readouts.append(float(p.js("document.getElementById('error').textContent")))
+        p.page.wait_for_timeout(100)
+    p.page.click("#play")
+    assert len(readouts) > 10 and max(readouts) > 0
+    assert max(readouts) < bound, (max(readouts), bound)
+    plotted = p.js("Math.max(...multipendulum.state.history.map(([t, e]) => e))")
+    assert plotted < bound, (plotted, bound)
+    assert p.errors == []
+
+
+@pytest.mark.parametrize("field, value, message", [
+    ("lengths", "-1", "lengths[0] must be > 0 and finite, got -1"),
+    ("lengths", "1, -0.5", "lengths[1] must be > 0 and finite, got -0.5"),
+    ("n", "0", 'N must be a whole number from 1 to 100, got "0"'),
+    ("n", "101", 'N must be a whole number from 1 to 100, got "101"'),
+    ("theta", "NaN", "theta0[0] must be finite, got NaN"),
+    ("masses", "abc", 'Masses: "abc" is not a number'),
+    ("g", "NaN", "g must be finite, got NaN"),
+    ("tol", "0", "rtol must be >= 1e-15 and finite, got 0"),
+])
+def test_bad_input_is_refused_with_a_visible_message(open_page, field, value, message):
+    p = open_page()
+    p.page.click("#play")
+    p.set(field, value)
+    assert message in p.message()
+    assert p.page.locator(f"[name={field}]").get_attribute("aria-invalid") == "true"
+    # The pendulum runs on with its last good setup: no NaN, not frozen.
+    t0 = p.t
+    p.wait(f"multipendulum.state.sim.t > {t0} + 0.2")
+    assert all(math.isfinite(v) for v in p.js("multipendulum.state.sim.positions()"))
+    assert "NaN" not in p.js("document.querySelector('.readouts').textContent")
+    p.set(field, {"n": "2", "theta": "130, 160", "tol": "1e-10"}.get(field, "1"))
+    assert p.message() == "" and p.page.locator(f"[name={field}]").get_attribute("aria-invalid") is None
+    assert p.errors == []
+
+
+def test_a_failed_integration_stops_with_a_message(open_page):
+    p = open_page("?n=2&method=gauss6&dt=0.5&theta=130,160")
+    p.page.click("#play")
+    p.page.wait_for_selector("#message:not([hidden])", timeout=10000)
+    assert "did not converge" in p.message()
+    assert all(math.isfinite(v) for v in p.js("multipendulum.state.sim.positions()"))
+    assert p.errors == []
+
+
+def test_bad_values_in_the_url_are_refused(open_page):
+    p = open_page("?n=0&lengths=1&masses=1&theta=0")
+    assert 'N must be a whole number from 1 to 100, got "0"' in p.message()
+    assert p.js("multipendulum.state.sim.n") == 2  # the default pendulum
+    p = open_page("?n=2&method=euler&lengths=1&masses=1&theta=0")
+    assert 'method must be one of rk4, dop853, gauss4, gauss6, got "euler"' in p.message()
+    p = open_page("?n=2&lengths=1&masses=1&theta=0&speed=1e9")
+    assert 'Speed must be one of 0.25, 0.5, 1, 2, 4, got "1e9"' in p.message()
+
+
+@pytest.mark.parametrize("n", [1, 5, 100])
+@pytest.mark.parametrize("kind", ["points", "rods"])
+def test_one_wasm_step_equals_the_python_package(open_page, n, kind):
+    p = open_page()
+    rng = np.random.default_rng(n)
+    lengths, masses = rng.uniform(0.3, 1.5, n), rng.uniform(0.2, 2.0, n)
+    theta0, omega0 = rng.uniform(-3, 3, n), rng.uniform(-2, 2, n)
+    dt = 0.01
+    params = dict(kind=kind, lengths=lengths.tolist(), masses=masses.tolist(), g=9.81, method="rk4", dt=dt,
+                  theta=theta0.tolist(), omega=omega0.tolist())
+    got = p.js("""(p) => {
+        const sim = multipendulum.engine.simulation(p);
+        sim.advanceTo(p.dt, 1);
+        const out = {t: sim.t, theta: sim.theta(), omega: sim.omega(), energy: sim.energy, e0: sim.initialEnergy};
+        sim.free();
+        return out;
+    }""", params)
+    chain = mp.Chain.rods(lengths, masses) if kind == "rods" else mp.Chain(lengths, masses)
+    sol = mp.simulate(chain, theta0, omega0, dt, method="rk4", dt=dt, t_eval=[dt])
+    assert got["t"] == dt
+    np.testing.assert_allclose(got["theta"], sol.theta[-1], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(got["omega"], sol.omega[-1], rtol=0, atol=1e-12)
+    assert abs(got["e0"] - chain.energy(theta0, omega0)) <= 1e-12 * max(1, abs(got["e0"]))
+    assert abs(got["energy"] - sol.energy[-1]) <= 1e-12 * max(1, abs(got["energy"]))
+
+
+def test_a_scenario_file_loads(open_page):
+    p = open_page()
+    p.page.set_input_files("#load", str(ROOT / "examples" / "triple.toml"))
+    p.wait("multipendulum.state.sim.n === 3")
+    assert "Loaded triple.toml" in p.message()
+    assert p.page.locator("#name").inner_text() == "Triple pendulum"
+    assert p.page.input_value("[name=method]") == "gauss6" and p.page.input_value("[name=dt]") == "0.002"
+    assert p.page.input_value("[name=theta]") == "90, 120, 150"
+    p.page.set_input_files("#load", str(ROOT / "examples" / "chain50.toml"))
+    p.wait("multipendulum.state.sim.n === 50")
+    theta = p.js("multipendulum.state.setup.theta")
+    np.testing.assert_allclose(theta, np.radians(np.linspace(90, 45, 50)), atol=1e-12)
+    p.page.set_input_files("#load", str(ROOT / "examples" / "driven_rod.toml"))
+    p.wait("document.getElementById('message').textContent.includes('driven_rod')")
+    assert "torque" in p.message()
+    p.page.set_input_files("#load", files=[{"name": "bad.toml", "mimeType": "text/plain",
+                                            "buffer": b"[chain]\nlengths = [1, -1]\nmasses = [1, 1]\n"
+                                                      b"[initial]\nunit = 'degrees'\ntheta = [0, 0]\n"}])
+    p.wait("document.getElementById('message').textContent.includes('lengths[1]')")
+    assert p.js("multipendulum.state.setup.kind") == "rods"  # still the driven rod: nothing applied
+    p.page.set_input_files("#load", files=[{"name": "broken.toml", "mimeType": "text/plain", "buffer": b"[chain\n"}])
+    p.wait("document.getElementById('message').textContent.includes('broken.toml')")
+    assert "line 1" in p.message()
+    assert p.errors == []
+
+
+def test_a_served_scenario_is_the_starting_setup(browser):
+    server = make_server(port=0, quiet=True, scenario=load_scenario(ROOT / "examples" / "chain50.toml"))
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    try:
+        p = Page(browser, server.url)
+        p.wait("multipendulum.state.sim.n === 50")
+        assert p.page.locator("#name").inner_text() == "50-link chain released from a curve"
+        assert p.page.input_value("[name=tol]") == "1e-9" and p.errors == []
+        p.close()
+    finally:
+        server.shutdown()
+        server.server_close()
+
+
+def test_the_url_shares_the_setup(open_page):
+    p = open_page()
+    p.set("n", "3")
+    p.set("lengths", "1, 0.5, 0.25")
+    p.page.select_option("[name=kind]", "rods")
+    p.page.select_option("[name=method]", "rk4")
+    p.set("dt", "0.001")
+    url = p.page.url
+    q = open_page(url[url.index("?"):])
+    for name, value in [("n", "3"), ("kind", "rods"), ("lengths", "1, 0.5, 0.25"), ("method", "rk4"),
+                        ("dt", "0.001"), ("theta", "130, 160, 160")]:
+        assert q.page.input_value(f"[name={name}]") == value, name
+    assert q.js("multipendulum.state.sim.n") == 3 and q.errors == []
+    # The playback speed is shared too, and changing it does not restart the run.
+    q.page.click("#play")
+    q.wait("multipendulum.state.sim.t > 0.3")
+    q.page.select_option("[name=speed]", "2")
+    assert q.t > 0.3 and "speed=2" in q.page.url
+
+
+def test_dragging_a_link_sets_its_starting_angle(open_page):
+    from urllib.parse import parse_qs, urlsplit
+
+    p = open_page("?n=2&lengths=1&masses=1&theta=0,0")
+    box = p.page.locator("#view").bounding_box()
+    inner = box["width"] - 2, box["height"] - 2  # inside the 1 px border
+    cx, cy = box["x"] + 1 + inner[0] / 2, box["y"] + 1 + inner[1] / 2
+    scale = 0.47 * min(inner) / 2.0  # CSS pixels per metre: the stretched chain (2 m) just fits
+    # Grab the outer link half way along (it hangs straight down) and pull it out to the right.
+    p.page.mouse.move(cx, cy + 1.5 * scale)
+    p.page.mouse.down()
+    p.page.mouse.move(cx + 0.7 * scale, cy + 1.7 * scale, steps=5)
+    p.page.mouse.move(cx + 2 * scale, cy + 1.0 * scale, steps=5)
+    p.page.mouse.up()
+    theta = [float(v) for v in p.page.input_value("[name=theta]").split(",")]
+    assert theta[0] == 0 and abs(theta[1] - 90) <= 0.5, theta
+    assert parse_qs(urlsplit(p.page.url).query)["theta"] == [p.page.input_value("[name=theta]")]
+    assert p.t == 0 and p.errors == []
+
+
+def test_a_hundred_links_run(open_page):
+    p = open_page("?n=100&lengths=0.02&masses=0.01&theta=60")
+    before = p.js("multipendulum.state.sim.positions()")
+    p.page.click("#play")
+    p.wait("multipendulum.state.sim.t > 1")
+    p.page.click("#play")
+    after = p.js("multipendulum.state.sim.positions()")
+    assert len(after) == 200 and all(math.isfinite(v) for v in after) and after != before
+    assert p.errors == []
