@@ -25,13 +25,13 @@ def _gif_frame_count(path):
         return im.n_frames
 
 
-@pytest.mark.parametrize("subcommand", [[], ["run"], ["animate"], ["plot"], ["demo"]], ids=lambda s: s[0] if s else "top")
+@pytest.mark.parametrize("subcommand", [[], ["run"], ["animate"], ["plot"], ["demo"], ["fractal"], ["serve"]], ids=lambda s: s[0] if s else "top")
 def test_help_everywhere(capsys, subcommand):
     assert main(subcommand + ["--help"]) == 0
     out = capsys.readouterr().out
     assert out.startswith("usage: multipendulum")
     if not subcommand:
-        for name in ("run", "animate", "plot", "demo"):
+        for name in ("run", "animate", "plot", "demo", "fractal", "serve"):
             assert name in out
 
 

@@ -13,6 +13,8 @@ from ._simulate import METHOD_INFO, METHODS, Crossing, EventRecord, Flip, Soluti
 from ._torque import Sinusoid, Table
 from .chaos import EnsembleResult, FlipMap, LyapunovResult, ensemble, PoincareSection, plot_poincare, poincare, flip_energy_threshold, flip_map, flip_times, lyapunov, trustworthy_until
 from .errors import InputError, IntegrationError
+from .modes import NormalModes, linearize, normal_modes
+from .sweeps import open_flip_map, sweep, sweep_flip_map
 
 try:
     __version__ = _version("multipendulum")
@@ -22,6 +24,8 @@ except PackageNotFoundError:  # pragma: no cover - running from a source tree wi
 __all__ = [
     "Chain", "simulate", "Solution", "Stats", "Flip", "Crossing", "EventRecord", "METHODS", "METHOD_INFO", "Sinusoid", "Table",
     "InputError", "IntegrationError", "__version__",
+    "normal_modes", "NormalModes", "linearize", "animate_mode", "plot_modes",
+    "sweep", "sweep_flip_map", "open_flip_map", "plot_flip_map",
     "ensemble", "EnsembleResult", "poincare", "PoincareSection", "plot_poincare", "lyapunov", "LyapunovResult", "trustworthy_until", "flip_energy_threshold", "flip_times", "flip_map", "FlipMap",
 ]
 
@@ -30,6 +34,9 @@ def __getattr__(name):
     # Presentation layers import Matplotlib; load them only when asked for.
     lazy = {
         "animate": ("animation", "animate"),
+        "animate_mode": ("modes", "animate_mode"),
+        "plot_modes": ("modes", "plot_modes"),
+        "plot_flip_map": ("fractal", "plot_flip_map"),
         "plot": ("plotting", "plot"),
         "save_results": ("results", "save_results"),
         "load_results": ("results", "load_results"),

@@ -104,32 +104,56 @@ class FlipMap:
     threshold: float
 
 
+def flip_threshold(chain: Chain, link, torque) -> float:
+    """The energy bound a map marks: none (-inf) for a driven chain, which can gain energy."""
+    return flip_energy_threshold(chain, link) if torque is None else -np.inf
+
+
+def _check_vary(vary, n):
+    try:
+        kx, ix, ky, iy = vary
+    except (TypeError, ValueError):
+        raise InputError(f"vary must be (kind_x, link_x, kind_y, link_y), got {vary!r}") from None
+    for kind, idx in ((kx, ix), (ky, iy)):
+        if kind not in ("theta", "omega") or isinstance(idx, bool) or not isinstance(idx, (int, np.integer)) \
+                or not 0 <= idx < n:
+            raise InputError(f"vary must name ('theta'|'omega', link index < {n}) twice, got {vary!r}")
+    if (kx, ix) == (ky, iy):
+        raise InputError(f"vary must name two different quantities, got {vary!r}")
+    return kx, int(ix), ky, int(iy)
+
+
+def _grid(yb, xb, vary, th_base, om_base):
+    # The initial states of a map's grid (values copied, never computed); also per Dask chunk.
+    kx, ix, ky, iy = vary
+    X, Y = np.meshgrid(xb, yb)
+    n = th_base.size
+    theta0 = np.broadcast_to(th_base, X.shape + (n,)).copy()
+    omega0 = np.broadcast_to(om_base, X.shape + (n,)).copy()
+    for kind, idx, values in ((kx, ix, X), (ky, iy, Y)):
+        (theta0 if kind == "theta" else omega0)[..., idx] = values
+    return theta0, omega0
+
+
 def flip_map(chain: Chain, x, y, t_max=10.0, dt=0.01, vary=("theta", 0, "theta", 1), base_theta=None,
              base_omega=None, link=None, torque=None) -> FlipMap:
     """Flip-time map over a grid of two initial values (radians or rad/s).
 
     ``vary=(kind_x, index_x, kind_y, index_y)`` names the two varied quantities, each ``"theta"``
     or ``"omega"`` of a link (default: theta_1 along x, theta_2 along y, from rest). The rest of
-    the initial state is ``base_theta`` / ``base_omega`` (default 0).
+    the initial state is ``base_theta`` / ``base_omega`` (default 0). Under a ``torque`` the chain
+    can gain energy, so no cell is marked impossible (``threshold = -inf``).
     """
     x, y = np.asarray(x, dtype=float).ravel(), np.asarray(y, dtype=float).ravel()
     n = chain.n
     th_base = np.zeros(n) if base_theta is None else as_state(base_theta, "base_theta", n)
     om_base = np.zeros(n) if base_omega is None else as_state(base_omega, "base_omega", n)
-    kx, ix, ky, iy = vary
-    for kind, idx in ((kx, ix), (ky, iy)):
-        if kind not in ("theta", "omega") or not isinstance(idx, (int, np.integer)) or not 0 <= idx < n:
-            raise InputError(f"vary must name ('theta'|'omega', link index < {n}) twice, got {vary!r}")
-    X, Y = np.meshgrid(x, y)
-    theta0 = np.broadcast_to(th_base, X.shape + (n,)).copy()
-    omega0 = np.broadcast_to(om_base, X.shape + (n,)).copy()
-    for kind, idx, values in ((kx, ix, X), (ky, iy, Y)):
-        (theta0 if kind == "theta" else omega0)[..., idx] = values
+    vary = _check_vary(vary, n)
+    theta0, omega0 = _grid(y, x, vary, th_base, om_base)
     times = flip_times(chain, theta0, omega0, t_max=t_max, dt=dt, link=link, torque=torque)
-    threshold = flip_energy_threshold(chain, link)
+    threshold = flip_threshold(chain, link, torque)
     allowed = chain.energy(theta0, omega0) >= threshold
     return FlipMap(x, y, times, allowed, float(t_max), threshold)
-
 
 @dataclass(frozen=True)
 class PoincareSection:

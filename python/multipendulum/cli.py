@@ -1,9 +1,10 @@
 """The ``multipendulum`` command.
 
 Subcommands: ``run`` a scenario file, ``animate`` or ``plot`` a results file, ``demo`` (the
-chaotic double pendulum, end to end). Each subcommand is one function decorated with
-:func:`command`, which adds its parser and sets its handler; adding a subcommand means adding
-one such function. Handlers return the exit status.
+chaotic double pendulum, end to end), ``serve`` the browser viewer, ``fractal`` a flip-time map
+of a scenario's chain. Each subcommand is one function decorated with :func:`command`, which
+adds its parser and sets its handler; adding a subcommand means adding one such function.
+Handlers return the exit status.
 
 Exit status: 0 on success, 1 for a bad scenario, bad input or a failed integration (the message
 names the problem and nothing is written), 2 for bad command-line usage, 130 when interrupted.
@@ -266,6 +267,185 @@ def _cmd_demo(args) -> int:
         sys.stdout.write(path.read_text(encoding="utf-8"))
         return 0
     return _run_scenario(args, load_scenario(path), args.output)
+
+
+@command
+def _add_serve(sub, common) -> None:
+    p = sub.add_parser(
+        "serve", parents=[common], help="serve the browser viewer on this machine",
+        description="Serve the browser viewer (the engine compiled to WebAssembly) and print its "
+                    "address; open it in a browser. With SCENARIO, the page starts from that "
+                    "scenario file. Binds 127.0.0.1 unless --host says otherwise; serves only the "
+                    "viewer's own files; opens nothing else. Stop it with Ctrl-C.",
+    )
+    p.add_argument("scenario", type=Path, nargs="?", metavar="SCENARIO", help="scenario file (.toml)")
+    p.add_argument("--port", default="8000", metavar="N",
+                   help="TCP port (default 8000; 0 picks a free one)")
+    p.add_argument("--host", default="127.0.0.1", metavar="ADDRESS",
+                   help="address to bind (default 127.0.0.1, this machine only; 0.0.0.0 exposes "
+                        "the viewer to the network)")
+    p.set_defaults(handler=_cmd_serve)
+
+
+def _cmd_serve(args) -> int:
+    from .viewer import make_server, parse_host, parse_port
+
+    host, port = parse_host(args.host), parse_port(args.port)  # refuse bad values before reading files
+    scenario = None
+    if args.scenario is not None:
+        from .scenario import load_scenario
+
+        scenario = load_scenario(args.scenario)
+    server = make_server(host, port, scenario=scenario, quiet=args.quiet)
+    url = server.url + (server.redirect.lstrip("/") if server.redirect else "")
+    print(f"multipendulum viewer at {url}  (Ctrl-C to stop)", flush=True)
+    if not _is_loopback(host):
+        print(f"warning: bound to {host}: other machines can reach the viewer", file=sys.stderr, flush=True)
+    try:
+        server.serve_forever()
+    except KeyboardInterrupt:
+        print("stopped", flush=True)
+    finally:
+        server.server_close()
+    return 0
+
+
+def _is_loopback(host: str) -> bool:
+    import ipaddress
+
+    return ipaddress.ip_address(host).is_loopback
+
+
+@command
+def _add_fractal(sub, common) -> None:
+    p = sub.add_parser(
+        "fractal", parents=[common], help="flip-time map of a scenario's chain (PNG; optionally Dask, Zarr)",
+        description="Release the scenario's chain from a grid of initial states (by default theta_1 "
+                    "against theta_2 over -180..180 degrees, the other values from the scenario's "
+                    "[initial]) and colour each by the time its first flip (a link over the top) took. "
+                    "Where the energy is below the least a flip needs, no flip is possible: that region "
+                    "is hatched and its boundary, the energy bound, drawn. The map is of the free chain "
+                    "(a scenario's torque is not applied). Runs on all cores; --dask spreads it over a "
+                    "cluster and --zarr writes it chunk by chunk.",
+    )
+    p.add_argument("scenario", type=Path, metavar="SCENARIO", help="scenario file (.toml)")
+    p.add_argument("-o", "--output", type=Path, required=True, metavar="MAP.png", help="picture to write (.png)")
+    p.add_argument("--size", type=int, default=256, metavar="N", help="grid of N x N initial states (default 256)")
+    p.add_argument("--t-max", type=float, metavar="SECONDS",
+                   help="how long to wait for a flip (default: the scenario's t_end)")
+    p.add_argument("--dt", type=float, default=0.01, metavar="SECONDS",
+                   help="rk4 step of the flip kernel (default 0.01; flips are root-found within a step)")
+    p.add_argument("--x", default="theta1", metavar="QUANTITY",
+                   help="quantity along x: thetaK or omegaK for link K = 1..N (default theta1)")
+    p.add_argument("--y", default="theta2", metavar="QUANTITY", help="quantity along y (default theta2)")
+    p.add_argument("--x-range", type=float, nargs=2, metavar=("LO", "HI"),
+                   help="x range in degrees (degrees/s for omega); default -180 180 (omega: -720 720)")
+    p.add_argument("--y-range", type=float, nargs=2, metavar=("LO", "HI"), help="y range, as --x-range")
+    p.add_argument("--link", type=int, metavar="K", help="time the flips of link K only (default: any link)")
+    p.add_argument("--linear", action="store_true", help="linear colour scale in time (default logarithmic)")
+    p.add_argument("--dask", metavar="ADDRESS",
+                   help="compute on Dask: a dask.distributed scheduler address (tcp://host:8786), or "
+                        "'threads' / 'processes' for Dask's local schedulers; needs multipendulum[dask]")
+    p.add_argument("--chunks", type=int, metavar="ROWS", help="rows of the grid per Dask task (default: about "
+                   "16384 initial states per task)")
+    p.add_argument("--zarr", type=Path, metavar="PATH",
+                   help="also write the map (times, allowed, x, y) to this Zarr store, chunk by chunk, "
+                        "without gathering it in one process; needs multipendulum[dask]")
+    p.add_argument("--dpi", type=float, default=150, help="resolution of the picture (default 150)")
+    p.set_defaults(handler=_cmd_fractal)
+
+
+def _fractal_axis(text: str, n: int, option: str):
+    import re
+
+    from multipendulum import InputError
+
+    m = re.fullmatch(r"(theta|omega)_?(\d+)", text.strip().lower())
+    if m is None or not 1 <= int(m.group(2)) <= n:
+        raise InputError(f"{option} must be theta1..theta{n} or omega1..omega{n}, got {text!r}")
+    return m.group(1), int(m.group(2)) - 1
+
+
+def _fractal_counts(fm, rows: int = 256):
+    """Counts of flipped, never-flipped and forbidden states, a block of rows at a time (the map
+    may be a Zarr store larger than memory)."""
+    import numpy as np
+
+    flipped = never = forbidden = 0
+    for r in range(0, fm.y.size, rows):
+        t = np.asarray(fm.times[r:r + rows])
+        a = np.asarray(fm.allowed[r:r + rows], dtype=bool)
+        fin = np.isfinite(t)
+        flipped += int(fin.sum())
+        never += int((~fin & a).sum())
+        forbidden += int((~a).sum())
+    return flipped, never, forbidden
+
+
+def _cmd_fractal(args) -> int:
+    import numpy as np
+
+    import multipendulum as mp
+    from .fractal import plot_flip_map
+    from .scenario import load_scenario
+
+    scenario = load_scenario(args.scenario)
+    chain = scenario.build_chain()
+    n = chain.n
+    if n < 2 and args.x.startswith("theta") and args.y.startswith("theta"):
+        raise mp.InputError("a flip map varies two quantities; a 1-link chain has theta1 and omega1: "
+                            "use --x theta1 --y omega1")
+    kx, ix = _fractal_axis(args.x, n, "--x")
+    ky, iy = _fractal_axis(args.y, n, "--y")
+    if (kx, ix) == (ky, iy):
+        raise mp.InputError(f"--x and --y must differ, both are {args.x!r}")
+    if args.size < 2:
+        raise mp.InputError(f"--size must be at least 2, got {args.size}")
+    if args.link is not None and not 1 <= args.link <= n:
+        raise mp.InputError(f"--link must be between 1 and {n}, got {args.link}")
+    if args.output.suffix.lower() != ".png":
+        raise mp.InputError(f"the map is written as PNG: -o must end in .png, got {str(args.output)!r}")
+    t_max = scenario.t_end if args.t_max is None else args.t_max
+    link = None if args.link is None else args.link - 1
+
+    def axis(kind, rng):
+        lo, hi = rng if rng is not None else ((-180.0, 180.0) if kind == "theta" else (-720.0, 720.0))
+        if not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):
+            raise mp.InputError(f"a range must have HI > LO, got {lo:g} {hi:g}")
+        step = (hi - lo) / args.size
+        return np.radians(lo + step * (np.arange(args.size) + 0.5))  # pixel centres
+
+    x, y = axis(kx, args.x_range), axis(ky, args.y_range)
+    vary = (kx, ix, ky, iy)
+    kwargs = dict(t_max=t_max, dt=args.dt, vary=vary, base_theta=scenario.theta0, base_omega=scenario.omega0,
+                  link=link)
+    title = scenario.name or args.scenario.stem
+    _say(args, f"{title}: flip-time map of {args.size} x {args.size} initial states, N = {n}, "
+               f"t_max = {t_max:g} s, dt = {args.dt:g} s")
+    if scenario.torque is not None:
+        _say(args, "  note: the scenario's torque is not applied; the map is of the free chain")
+    start = time.perf_counter()
+    if args.dask is not None or args.zarr is not None or args.chunks is not None:
+        try:
+            fm = mp.sweep_flip_map(chain, x, y, chunks=args.chunks, scheduler=args.dask,
+                                   zarr=args.zarr, **kwargs)
+        except ImportError as exc:
+            return _error(str(exc))
+    else:
+        fm = mp.flip_map(chain, x, y, **kwargs)
+    wall = time.perf_counter() - start
+    total = args.size * args.size
+    flipped, never, forbidden = _fractal_counts(fm)
+    _say(args, f"  flipped {100 * flipped / total:.1f}%, no flip by t_max {100 * never / total:.1f}%, "
+               f"no flip possible (energy below E_flip = {fm.threshold:.4g} J) {100 * forbidden / total:.1f}%; "
+               f"wall time {wall:.3g} s")
+    if args.zarr is not None:
+        _say(args, f"wrote {args.zarr}")
+    path = plot_flip_map(fm, args.output, chain=chain, vary=vary, base_theta=scenario.theta0,
+                         base_omega=scenario.omega0, title=f"{title}: time of the first flip"
+                         + ("" if link is None else f" of link {link + 1}"), dpi=args.dpi, log=not args.linear)
+    _say(args, f"wrote {path}")
+    return 0
 
 
 # ----------------------------------------------------------------------------------------------

@@ -1,0 +1,305 @@
+"""Sweeps beyond one process: initial-condition grids split into chunks, one Dask task per chunk.
+
+Each task calls the Rust ensemble kernel (:func:`multipendulum.flip_times`) on its chunk; the
+kernel releases the GIL and runs on all the worker's cores, so the threads of the local scheduler
+and the processes of a ``dask.distributed`` cluster both keep every core busy. Nothing here
+schedules work itself: Dask does. A trajectory's flip time does not depend on which chunk,
+worker or thread computes it, so a sweep equals the single-process result bit for bit.
+
+``scheduler`` (every function here):
+
+- ``None`` or ``"threads"``: Dask's local threaded scheduler, in this process (nothing to start),
+  on a thread pool that is waited for before the call returns or raises;
+- ``"sync"``: one task after another in this thread (for debugging);
+- ``"processes"``: Dask's local process pool;
+- an address such as ``"tcp://10.0.0.5:8786"``: a running ``dask.distributed`` scheduler
+  (a client is opened for the call and closed after it);
+- a ``distributed.Client``: used as is.
+
+``zarr``: a directory path. The result is then written chunk by chunk into a Zarr store by the
+tasks themselves and never gathered into one process, so a 4096 x 4096 map never has to fit in
+memory; the function returns the (lazy, on-disk) Zarr array instead of a NumPy array. With a
+distributed cluster the path must be on a file system every worker sees. An existing path is
+replaced only when it is an empty directory or a store written here before (anything else is
+refused, never wiped), and a run that fails or is interrupted removes its store.
+
+Dask, ``distributed`` (for addresses) and Zarr are optional: ``pip install 'multipendulum[dask]'``.
+"""
+from __future__ import annotations
+
+import contextlib
+import functools
+import importlib.util
+import math
+import os
+from typing import Any, Dict, Iterator, Optional, Tuple, Union
+
+import numpy as np
+
+from ._chain import Chain, as_state
+from .chaos import FlipMap, _check_vary, _grid, flip_threshold, flip_times
+from .errors import InputError
+
+__all__ = ["sweep", "sweep_flip_map", "open_flip_map", "DEFAULT_CHUNK_SIZE"]
+
+#: Trajectories per task when ``chunks`` is not given: large enough that the Rust kernel's own
+#: parallelism pays off inside a task, small enough to spread a 256 x 256 map over many workers.
+DEFAULT_CHUNK_SIZE = 16384
+_LOCAL = {"sync": "sync", "synchronous": "sync", "processes": "processes"}
+_INSTALL = "pip install 'multipendulum[dask]'  (dask[array], distributed, zarr)"
+
+
+def _dask():
+    try:
+        import dask
+        import dask.array as da
+    except ImportError as exc:
+        raise ImportError(f"multipendulum sweeps need Dask, which is not installed: {_INSTALL}") from exc
+    return dask, da
+
+
+@contextlib.contextmanager
+def _scheduler(scheduler) -> Iterator[Dict[str, Any]]:
+    """Keyword arguments for ``dask.compute``. Opens (and closes) a client for an address. Local
+    threads run in a pool of our own, which is waited for on the way out, so that when a task
+    fails no other task is still writing when the caller cleans up."""
+    if scheduler is None or scheduler == "threads":
+        from concurrent.futures import ThreadPoolExecutor
+
+        pool = ThreadPoolExecutor(max_workers=os.cpu_count() or 1, thread_name_prefix="multipendulum-sweep")
+        try:
+            yield {"scheduler": "threads", "pool": pool}
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
+        return
+    if isinstance(scheduler, str):
+        if scheduler in _LOCAL:
+            yield {"scheduler": _LOCAL[scheduler]}
+            return
+        if ":" not in scheduler:
+            raise InputError(
+                "scheduler must be None, 'threads', 'sync', 'processes', a dask.distributed address "
+                f"such as 'tcp://host:8786', or a distributed.Client; got {scheduler!r}")
+        try:
+            from distributed import Client
+        except ImportError as exc:
+            raise ImportError(
+                f"a scheduler address needs dask.distributed, which is not installed: {_INSTALL}") from exc
+        try:
+            client = Client(scheduler, set_as_default=False, timeout="20s")
+        except OSError as exc:
+            raise OSError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from exc
+        try:
+            yield {"scheduler": client}
+        finally:
+            client.close()
+        return
+    if type(scheduler).__name__ == "Client" and type(scheduler).__module__.startswith("distributed"):
+        yield {"scheduler": scheduler}
+        return
+    raise InputError("scheduler must be None, a name, an address or a distributed.Client, "
+                     f"got {type(scheduler).__name__}")
+
+
+def _positive_int(value, name) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise InputError(f"{name} must be a positive integer, got {value!r}")
+    return int(value)
+
+
+def _check_zarr_path(zarr) -> Optional[str]:
+    if zarr is None:
+        return None
+    if importlib.util.find_spec("zarr") is None:
+        raise ImportError(f"writing to Zarr needs the zarr package, which is not installed: {_INSTALL}")
+    return os.fspath(zarr)
+
+
+_KINDS = ("multipendulum.sweep", "multipendulum.flip_map")
+
+
+@contextlib.contextmanager
+def _fresh_store(path: str, kind: str, attrs: dict):
+    """A new Zarr group at ``path`` for this run, removed again if the run fails or is interrupted.
+    An existing path is replaced only when it is an empty directory or a store written here
+    before: anything else is refused rather than wiped."""
+    import shutil
+
+    import zarr as _zarr
+
+    if os.path.lexists(path):
+        ours = False
+        if os.path.isdir(path) and not os.listdir(path):
+            ours = True
+        else:
+            try:
+                ours = _zarr.open_group(path, mode="r").attrs.get("kind") in _KINDS
+            except Exception:  # not a Zarr group at all
+                ours = False
+        if not ours:
+            raise InputError(f"zarr path {path!r} exists and is not a store written by multipendulum; "
+                             "remove it or choose another path")
+    group = _zarr.open_group(path, mode="w")  # a fresh store: no stale chunks from an earlier run
+    group.attrs.update(dict(attrs, kind=kind))
+    try:
+        yield group
+    except BaseException:
+        shutil.rmtree(path, ignore_errors=True)
+        raise
+
+
+def _times_block(theta, omega, chain, t_max, dt, link, torque):
+    # One task: a contiguous block of initial states, shape (rows, ..., N) -> (rows, ...).
+    return flip_times(chain, theta, omega, t_max=t_max, dt=dt, link=link, torque=torque)
+
+
+def sweep(chain: Chain, theta0, omega0=None, t_max=10.0, dt=0.01, link=None, torque=None, chunks=None,
+          scheduler=None, zarr=None):
+    """:func:`multipendulum.flip_times` over a large batch of initial states, on Dask.
+
+    ``theta0`` (and ``omega0``, default rest) of shape (B, ..., N) is split along its first axis
+    into chunks of ``chunks`` rows (default: about :data:`DEFAULT_CHUNK_SIZE` trajectories per
+    chunk); each chunk is one task. Returns the flip times, shape (B, ...), ``inf`` where link
+    ``link`` (None: any link) never went over the top by ``t_max``: a NumPy array, or the Zarr
+    array written at ``zarr`` when given. ``torque`` must pickle to reach other processes (the
+    built-ins and arrays do). See the module docstring for ``scheduler``.
+
+    >>> import numpy as np, multipendulum as mp
+    >>> chain = mp.Chain([1, 1], [1, 1])
+    >>> th0 = np.random.default_rng(0).uniform(-3, 3, (100, 2))
+    >>> bool(np.array_equal(mp.sweep(chain, th0, t_max=2.0, chunks=30), mp.flip_times(chain, th0, t_max=2.0)))
+    True
+    """
+    dask, da = _dask()
+    if not isinstance(chain, Chain):
+        raise InputError(f"chain must be a multipendulum.Chain, got {type(chain).__name__}")
+    th0 = as_state(theta0, "theta0", chain.n)
+    om0 = np.zeros_like(th0) if omega0 is None else as_state(omega0, "omega0", chain.n)
+    if th0.shape != om0.shape:
+        raise InputError(f"theta0 and omega0 must have the same shape, got {th0.shape} and {om0.shape}")
+    if th0.ndim < 2:
+        raise InputError(f"theta0 must have a batch axis, shape (B, ..., {chain.n}), got {th0.shape}")
+    path = _check_zarr_path(zarr)
+    # Check t_max, dt, link and torque here, on no states, rather than in every task.
+    flip_times(chain, th0.reshape(-1, chain.n)[:0], t_max=t_max, dt=dt, link=link, torque=torque)
+    per_row = max(1, math.prod(th0.shape[1:-1]))
+    rows = max(1, DEFAULT_CHUNK_SIZE // per_row) if chunks is None else _positive_int(chunks, "chunks")
+    block = (rows,) + th0.shape[1:]
+    th = da.from_array(th0, chunks=block)
+    om = da.from_array(om0, chunks=block)
+    times = da.map_blocks(_times_block, th, om, chain, float(t_max), float(dt), link, torque,
+                          drop_axis=th.ndim - 1, dtype=np.float64, meta=np.empty((0,) * (th.ndim - 1)))
+    if path is None:
+        with _scheduler(scheduler) as how:
+            (out,) = dask.compute(times, **how)
+        return out
+    import zarr as _zarr
+
+    attrs = {"t_max": float(t_max), "dt": float(dt), "link": None if link is None else int(link),
+             "chain": chain.to_dict()}
+    # The store outside the scheduler: on failure every task has stopped before it is removed.
+    with _fresh_store(path, "multipendulum.sweep", attrs), _scheduler(scheduler) as how:
+        dask.compute(da.to_zarr(times, path, component="times", compute=False), **how)
+    return _zarr.open_group(path, mode="r")["times"]
+
+
+# ----------------------------------------------------------------------------------------------
+# Flip-time maps: the initial grid is built inside each task, never as a whole
+
+
+def _map_times_block(yb, xb, chain, vary, th_base, om_base, t_max, dt, link, torque):
+    theta0, omega0 = _grid(yb, xb, vary, th_base, om_base)
+    return flip_times(chain, theta0, omega0, t_max=t_max, dt=dt, link=link, torque=torque)
+
+
+def _map_allowed_block(yb, xb, chain, vary, th_base, om_base, threshold):
+    theta0, omega0 = _grid(yb, xb, vary, th_base, om_base)
+    return np.asarray(chain.energy(theta0, omega0) >= threshold)
+
+
+def _chunk_shape(chunks, ny, nx) -> Tuple[int, int]:
+    if chunks is None:
+        cols = nx
+        rows = max(1, DEFAULT_CHUNK_SIZE // max(1, nx))
+        return min(rows, ny), cols
+    if isinstance(chunks, (int, np.integer)) and not isinstance(chunks, bool):
+        return _positive_int(chunks, "chunks"), nx
+    try:
+        rows, cols = chunks
+    except (TypeError, ValueError):
+        raise InputError(f"chunks must be rows or (rows, columns), got {chunks!r}") from None
+    return _positive_int(rows, "chunks[0]"), _positive_int(cols, "chunks[1]")
+
+
+def sweep_flip_map(chain: Chain, x, y, t_max=10.0, dt=0.01, vary=("theta", 0, "theta", 1), base_theta=None,
+                   base_omega=None, link=None, torque=None, chunks=None, scheduler=None, zarr=None) -> FlipMap:
+    """:func:`multipendulum.flip_map` on Dask, for grids too large for one process.
+
+    Same arguments and the same result (bit for bit) as ``flip_map``; in addition ``chunks``,
+    ``scheduler`` and ``zarr`` as for :func:`sweep`. ``chunks`` is a number of rows (of ``y``)
+    or ``(rows, columns)``; by default whole rows, about :data:`DEFAULT_CHUNK_SIZE` points per
+    chunk. Each task builds its own part of the initial grid from ``x`` and ``y``, so the
+    (len(y), len(x), N) array of initial states never exists anywhere.
+
+    With ``zarr``, the store gets arrays ``times`` and ``allowed`` (written chunk by chunk by
+    the tasks) plus ``x`` and ``y`` and the attributes ``t_max`` and ``threshold``; the returned
+    map's ``times`` and ``allowed`` are then the on-disk Zarr arrays (index them to read a part).
+    :func:`open_flip_map` opens such a store again.
+    """
+    dask, da = _dask()
+    if not isinstance(chain, Chain):
+        raise InputError(f"chain must be a multipendulum.Chain, got {type(chain).__name__}")
+    x, y = np.asarray(x, dtype=float).ravel(), np.asarray(y, dtype=float).ravel()
+    n = chain.n
+    for name, v in (("x", x), ("y", y)):
+        if v.size == 0 or not np.isfinite(v).all():
+            raise InputError(f"{name} must be a non-empty array of finite numbers")
+    th_base = np.zeros(n) if base_theta is None else as_state(base_theta, "base_theta", n)
+    om_base = np.zeros(n) if base_omega is None else as_state(base_omega, "base_omega", n)
+    if th_base.ndim != 1 or om_base.ndim != 1:
+        raise InputError(f"base_theta and base_omega must have shape ({n},)")
+    vary = _check_vary(vary, n)
+    path = _check_zarr_path(zarr)
+    threshold = flip_threshold(chain, link, torque)
+    flip_times(chain, np.zeros((0, n)), t_max=t_max, dt=dt, link=link, torque=torque)  # checks, on no states
+    rows, cols = _chunk_shape(chunks, y.size, x.size)
+    Y = da.from_array(y, chunks=rows)
+    X = da.from_array(x, chunks=cols)
+    kernel = functools.partial(_map_times_block, chain=chain, vary=vary, th_base=th_base, om_base=om_base,
+                               t_max=float(t_max), dt=float(dt), link=link, torque=torque)
+    energy = functools.partial(_map_allowed_block, chain=chain, vary=vary, th_base=th_base, om_base=om_base,
+                               threshold=threshold)
+    times = da.blockwise(kernel, "ij", Y, "i", X, "j", dtype=np.float64, meta=np.empty((0, 0)))
+    allowed = da.blockwise(energy, "ij", Y, "i", X, "j", dtype=bool, meta=np.empty((0, 0), dtype=bool))
+    if path is None:
+        with _scheduler(scheduler) as how:
+            t, a = dask.compute(times, allowed, **how)
+        return FlipMap(x, y, t, a, float(t_max), threshold)
+    attrs = {"t_max": float(t_max), "dt": float(dt), "threshold": threshold, "vary": list(vary),
+             "base_theta": th_base.tolist(), "base_omega": om_base.tolist(),
+             "link": None if link is None else int(link), "chain": chain.to_dict()}
+    with _fresh_store(path, "multipendulum.flip_map", attrs), _scheduler(scheduler) as how:
+        stores = [da.to_zarr(arr, path, component=name, compute=False)
+                  for name, arr in (("times", times), ("allowed", allowed))]
+        stores += [da.to_zarr(da.from_array(v, chunks=v.size), path, component=name, compute=False)
+                   for name, v in (("x", x), ("y", y))]
+        dask.compute(*stores, **how)
+    return open_flip_map(path)
+
+
+def open_flip_map(path: Union[str, "os.PathLike[str]"]) -> FlipMap:
+    """A flip-time map written by :func:`sweep_flip_map` (or ``multipendulum fractal --zarr``):
+    ``x``, ``y`` read into memory; ``times`` and ``allowed`` left on disk as Zarr arrays."""
+    try:
+        import zarr as _zarr
+    except ImportError as exc:
+        raise ImportError(f"reading a Zarr store needs the zarr package, which is not installed: {_INSTALL}") from exc
+    path = os.fspath(path)
+    try:
+        group = _zarr.open_group(path, mode="r")
+    except Exception as exc:  # zarr raises several kinds for a missing or foreign store
+        raise InputError(f"{path}: not a Zarr store ({exc})") from exc
+    if group.attrs.get("kind") != "multipendulum.flip_map":
+        raise InputError(f"{path}: not a flip-time map written by multipendulum")
+    return FlipMap(np.asarray(group["x"][:]), np.asarray(group["y"][:]), group["times"], group["allowed"],
+                   float(group.attrs["t_max"]), float(group.attrs["threshold"]))
