@@ -116,3 +116,13 @@ def test_ensemble_keeps_final_states_and_reductions_equal_to_single_runs():
     np.testing.assert_array_equal(np.isfinite(ens.first_flip), np.isfinite(flips))
     both = np.isfinite(flips)
     assert both.any() and np.max(np.abs(ens.first_flip[both] - flips[both])) < 1e-6
+
+
+def test_every_run_can_say_how_long_it_is_trustworthy():
+    chaotic = mp.simulate(DOUBLE, [2.0, 2.5], [0, 0], 60.0, t_eval=np.linspace(0, 60, 601))
+    until = chaotic.trustworthy_until()
+    # lambda ~ 1.5/s, eps = rtol 1e-10: ln(1e8)/1.5 ~ 12 s, well before the end of the run.
+    assert 5.0 < until < 30.0
+    regular = mp.simulate(DOUBLE, [0.1, 0.05], [0, 0], 60.0, t_eval=np.linspace(0, 60, 601))
+    assert regular.trustworthy_until() == np.inf
+    assert mp.simulate(DOUBLE, [2.0, 2.5], [0, 0], 5.0, torque=lambda t: [0, 0]).trustworthy_until() is None

@@ -133,6 +133,25 @@ class Solution:
     def n(self) -> int:
         return self.chain.n
 
+    def trustworthy_until(self, tolerance: float = 1e-2, horizon: float = 100.0):
+        """How long this run stays within ``tolerance`` (radians) of the true motion:
+        ``ln(tolerance / eps) / lambda_max``, with lambda_max from the variational equations over
+        the run (at most ``horizon`` seconds of it) and eps the run's own error level (dop853:
+        its rtol; fixed-step methods: the measured energy error). ``inf`` for regular motion;
+        None where it cannot be computed (a batch, or a torque given as a Python function)."""
+        from .chaos import lyapunov, trustworthy_until
+
+        if self.theta.ndim != 2 or callable(self._torque) or self._joint:
+            return None
+        span = float(min(self.t[-1], horizon))
+        if span <= 0:
+            return None
+        lam = lyapunov(self.chain, self.theta[0], self.omega[0], span, dt=min(0.005, span / 20), k=1,
+                       torque=self._torque).largest
+        eps = self._rtol if self.method == "dop853" else max(float(self.stats.energy_error), 1e-16)
+        # Below ~0.05/s over this span the separation is not exponential: regular motion.
+        return trustworthy_until(lam if lam > 0.05 else 0.0, tolerance, eps)
+
     def __repr__(self):
         return (f"Solution(method={self.method!r}, n={self.n}, outputs={self.t.size}, "
                 f"theta shape={self.theta.shape}, steps={self.stats.steps}, "
@@ -210,4 +229,6 @@ def simulate(chain: Chain, theta0, omega0, t_end, method="dop853", dt=None, rtol
     if progress is not None:
         progress(1.0)
     stats = Stats._from(data["stats"], bool(batch_shape), wall)
-    return Solution(chain, method, data["form"], data, batch_shape, stats, len(events))
+    sol = Solution(chain, method, data["form"], data, batch_shape, stats, len(events))
+    sol._torque, sol._joint, sol._rtol = (joint_torque if joint else torque), joint, rtol
+    return sol

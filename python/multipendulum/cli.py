@@ -101,7 +101,18 @@ def _summary(scenario, sol) -> List[str]:
         f"{head}N = {n}, method {sol.method}, t_end = {scenario.t_end:g} s, {len(sol.t)} samples",
         f"  {steps}, {stats.evaluations} evaluations, wall time {stats.wall_time:.3g} s",
         f"  max energy error {stats.energy_error:.3g} (|E - E0 - W| / |E0|)",
+        _trust_line(sol),
     ]
+
+
+def _trust_line(sol) -> str:
+    until = sol.trustworthy_until()
+    if until is None:
+        return "  trustworthy until: unknown (a Python torque function)"
+    if until == float("inf"):
+        return "  trustworthy until: the end (no exponential divergence: regular motion)"
+    note = "" if until >= sol.t[-1] else "; later samples are one of many possible motions"
+    return f"  trustworthy to 1e-2 rad until ~{until:.3g} s (largest Lyapunov exponent){note}"
 
 
 def _run_scenario(args, scenario, outdir: Path) -> int:
