@@ -79,5 +79,36 @@ def test_bad_events():
         mp.simulate(DOUBLE, [0.5, 0.3], [0, 0], 1.0, events=[mp.Crossing(theta=[1, 0], direction=2)])
     with pytest.raises(mp.InputError, match=r"Flip.link must be an integer in \[0, 2\) or None, got 5"):
         mp.simulate(DOUBLE, [0.5, 0.3], [0, 0], 1.0, events=[mp.Flip(link=5)])
-    with pytest.raises(mp.InputError, match="events must be mp.Flip or mp.Crossing objects, got function"):
+    with pytest.raises(mp.InputError, match="events must be mp.Flip, mp.Crossing or mp.Event objects, got function"):
         mp.simulate(DOUBLE, [0.5, 0.3], [0, 0], 1.0, events=[lambda t, y: 0])
+
+
+def test_a_python_condition_is_root_found_like_the_built_ins():
+    # The tip's height crossing y = -1.5 downward: a nonlinear condition of the state.
+    def below(t, theta, omega):
+        return -1.5 - DOUBLE.positions(theta)[-1, 1]
+
+    sol = mp.simulate(DOUBLE, [1.2, 1.5], [0, 0], 6.0, t_eval=[6.0], events=[mp.Event(below, direction=1)])
+    hits = sol.events[0]
+    assert hits.t.size >= 2
+    np.testing.assert_allclose(DOUBLE.positions(hits.theta)[:, -1, 1], -1.5, atol=1e-10)
+    # Terminal, on the time axis: stops at t = 1.234 exactly (to the root finder's precision).
+    stop = mp.simulate(DOUBLE, [1.2, 1.5], [0, 0], 6.0, events=[mp.Event(lambda t, th, om: t - 1.234, terminal=True)])
+    assert abs(stop.stopped_at - 1.234) < 1e-12
+
+
+def test_a_python_condition_that_raises_or_returns_junk():
+    class Oops(Exception):
+        pass
+
+    def bad(t, theta, omega):
+        if t > 0.3:
+            raise Oops("condition failed")
+        return 1.0
+
+    with pytest.raises(Oops, match="condition failed"):
+        mp.simulate(DOUBLE, [1.0, 0.5], [0, 0], 1.0, events=[mp.Event(bad)])
+    with pytest.raises(mp.InputError, match="the event function must return a number, got 'x'"):
+        mp.simulate(DOUBLE, [1.0, 0.5], [0, 0], 1.0, events=[mp.Event(lambda t, th, om: "x")])
+    with pytest.raises(mp.InputError, match="runs in single runs only"):
+        mp.simulate(DOUBLE, [[1.0, 0.5]], [[0, 0]], 1.0, t_eval=[1.0], events=[mp.Event(lambda t, th, om: t)])

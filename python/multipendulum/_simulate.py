@@ -54,6 +54,25 @@ class Crossing:
 
 
 @dataclass(frozen=True)
+class Event:
+    """Event: any condition ``g(t, theta, omega) -> float`` crossing zero (``direction`` +1
+    upward, -1 downward, 0 both), located by root finding on the dense output; recorded, or
+    stopping the run when ``terminal``. Called from Rust at every step's end and while
+    root finding, so it is slower than :class:`Flip` / :class:`Crossing`. Single runs only."""
+
+    g: object
+    direction: int = 1
+    terminal: bool = False
+
+    def _spec(self, n):
+        if not callable(self.g):
+            raise InputError(f"Event.g must be callable as g(t, theta, omega), got {type(self.g).__name__}")
+        if self.direction not in (-1, 0, 1):
+            raise InputError(f"direction must be -1, 0 or +1, got {self.direction!r}")
+        return ("callable", self.g, int(self.direction), bool(self.terminal))
+
+
+@dataclass(frozen=True)
 class EventRecord:
     """The crossings of one event: times (K,), and theta, omega, p (K, N) there."""
 
@@ -180,7 +199,7 @@ def simulate(chain: Chain, theta0, omega0, t_end, method="dop853", dt=None, rtol
     A leading batch axis on ``theta0``/``omega0`` (B, N) runs the B trajectories in parallel on
     all cores (GIL released); a Python torque function runs them one after another.
     ``progress``: optional ``callable(fraction)``, called about ten times a second.
-    ``events``: :class:`Flip` / :class:`Crossing` conditions, located by root finding on the
+    ``events``: :class:`Flip` / :class:`Crossing` / :class:`Event` conditions, located by root finding on the
     dense output; ``sol.events[i]`` holds event i's crossings, ``sol.stopped_at`` the time a
     terminal one ended the run.
 
@@ -219,8 +238,11 @@ def simulate(chain: Chain, theta0, omega0, t_end, method="dop853", dt=None, rtol
     spec, joint = normalise_torque(torque, joint_torque, chain.n)
     events = list(events or [])
     for e in events:
-        if not isinstance(e, (Flip, Crossing)):
-            raise InputError(f"events must be mp.Flip or mp.Crossing objects, got {type(e).__name__}")
+        if not isinstance(e, (Flip, Crossing, Event)):
+            raise InputError(f"events must be mp.Flip, mp.Crossing or mp.Event objects, got {type(e).__name__}")
+        if isinstance(e, Event) and batch_shape:
+            raise InputError("a Python event function (mp.Event) runs in single runs only; "
+                             "use mp.Flip or mp.Crossing for batches")
     event_specs = [e._spec(chain.n) for e in events]
     start = time.perf_counter()
     data = _core.simulate(chain._c, th0.ravel(), om0.ravel(), t_end, method, form, dt, rtol, atol,

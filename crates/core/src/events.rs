@@ -6,13 +6,45 @@ use crate::dynamics::Workspace;
 use crate::error::{Error, Result};
 use crate::model::Chain;
 use crate::system::Form;
+use std::sync::Arc;
 
-#[derive(Debug, Clone, PartialEq)]
+/// A user's event function `g(t, theta, omega)` (e.g. written in Python by the bindings).
+pub trait EventFn: Send + Sync {
+    fn value(&self, t: f64, theta: &[f64], omega: &[f64]) -> Result<f64>;
+}
+
+#[derive(Clone)]
 pub enum Condition {
     /// `|theta_k| - pi` (link `k` goes over the top); `None`: the largest over all links.
     Flip(Option<usize>),
     /// `theta . a + omega . b + c`, e.g. `theta_1` for a Poincaré section.
     Linear { theta: Vec<f64>, omega: Vec<f64>, constant: f64 },
+    /// Any function of the state; evaluated at each step's end and during root finding.
+    Custom(Arc<dyn EventFn>),
+}
+
+impl std::fmt::Debug for Condition {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Condition::Flip(k) => write!(f, "Flip({k:?})"),
+            Condition::Linear { theta, omega, constant } => write!(f, "Linear({theta:?}, {omega:?}, {constant})"),
+            Condition::Custom(_) => f.write_str("Custom(..)"),
+        }
+    }
+}
+
+impl PartialEq for Condition {
+    fn eq(&self, other: &Self) -> bool {
+        match (self, other) {
+            (Condition::Flip(a), Condition::Flip(b)) => a == b,
+            (
+                Condition::Linear { theta: a, omega: b, constant: c },
+                Condition::Linear { theta: x, omega: y, constant: z },
+            ) => a == x && b == y && c == z,
+            (Condition::Custom(a), Condition::Custom(b)) => Arc::ptr_eq(a, b),
+            _ => false,
+        }
+    }
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -85,7 +117,7 @@ impl<'a> Tracker<'a> {
         !self.specs.is_empty()
     }
 
-    fn values(&mut self, y: &[f64], out: &mut [f64]) {
+    fn values(&mut self, t: f64, y: &[f64], out: &mut [f64]) -> Result<()> {
         let n = self.chain.n();
         let theta = &y[..n];
         let omega: &[f64] = match self.form {
@@ -106,14 +138,23 @@ impl<'a> Tracker<'a> {
                         + omega.iter().zip(b).map(|(x, c)| x * c).sum::<f64>()
                         + constant
                 }
+                Condition::Custom(f) => {
+                    let v = f.value(t, theta, omega)?;
+                    if !v.is_finite() {
+                        return Err(Error::input(format!("the event function returned {v} at t = {t}")));
+                    }
+                    v
+                }
             };
         }
+        Ok(())
     }
 
-    pub fn start(&mut self, y: &[f64]) {
+    pub fn start(&mut self, t: f64, y: &[f64]) -> Result<()> {
         let mut v = std::mem::take(&mut self.prev);
-        self.values(y, &mut v);
+        let r = self.values(t, y, &mut v);
         self.prev = v;
+        r
     }
 
     fn crosses(&self, i: usize, a: f64, b: f64) -> bool {
@@ -126,12 +167,13 @@ impl<'a> Tracker<'a> {
         }
     }
 
-    /// After a step to `y_new`: does any event cross zero within it?
-    pub fn detect(&mut self, y_new: &[f64]) -> bool {
+    /// After a step to `(t_new, y_new)`: does any event cross zero within it?
+    pub fn detect(&mut self, t_new: f64, y_new: &[f64]) -> Result<bool> {
         let mut v = std::mem::take(&mut self.next);
-        self.values(y_new, &mut v);
+        let r = self.values(t_new, y_new, &mut v);
         self.next = v;
-        (0..self.specs.len()).any(|i| self.crosses(i, self.prev[i], self.next[i]))
+        r?;
+        Ok((0..self.specs.len()).any(|i| self.crosses(i, self.prev[i], self.next[i])))
     }
 
     /// Locate the crossings of the step `[t, t + h]` on `interp(x, out)` (the state at `t + x h`)
@@ -162,7 +204,7 @@ impl<'a> Tracker<'a> {
                     x = 0.5 * (a + b);
                 }
                 interp(x, &mut y)?;
-                self.values(&y, &mut vals);
+                self.values(t + x * h, &y, &mut vals)?;
                 let gx = vals[i];
                 if gx == 0.0 {
                     b = x;

@@ -13,7 +13,7 @@ pub mod reference;
 
 pub use dynamics::{Singular, Workspace};
 pub use error::{Error, Result};
-pub use events::{Condition, EventSpec};
+pub use events::{Condition, EventFn, EventSpec};
 pub use model::Chain;
 pub mod integrators;
 pub mod simulate;

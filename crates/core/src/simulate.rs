@@ -212,7 +212,7 @@ fn run_fixed<S: OdeSystem, I: FixedStep>(
         rec.push(0.0, y);
     }
     let mut y_start = vec![0.0; d];
-    events.start(y);
+    events.start(0.0, y)?;
     for k in 0..steps {
         let t = k as f64 * dt;
         let t_next = if k + 1 == steps { t_end } else { (k + 1) as f64 * dt };
@@ -238,7 +238,7 @@ fn run_fixed<S: OdeSystem, I: FixedStep>(
         stats.steps += 1;
         check_state_finite(t_next, y)?;
         if events.active() {
-            if events.detect(y) {
+            if events.detect(t_next, y)? {
                 let (mut fa, mut fb) = (vec![0.0; d], vec![0.0; d]);
                 sys.rhs(t, &y_start, &mut fa)?;
                 sys.rhs(t_next, y, &mut fb)?;
@@ -303,7 +303,7 @@ fn run_dop853<S: OdeSystem>(
 ) -> Result<Recorder> {
     let d = y.len();
     let mut rk = Dop853::new(d, settings.rtol, settings.atol);
-    events.start(y);
+    events.start(0.0, y)?;
     let t_eval = settings.t_eval.as_deref();
     let mut rec = Recorder { t: Vec::new(), y: Vec::new(), stopped_at: None };
     let mut next_out = 0usize;
@@ -346,7 +346,7 @@ fn run_dop853<S: OdeSystem>(
             Attempt::Accepted { h_next } => {
                 check_state_finite(t + h_try, &y_new)?;
                 let t_new = if last { t_end } else { t + h_try };
-                let crossing = events.active() && events.detect(&y_new);
+                let crossing = events.active() && events.detect(t_new, &y_new)?;
                 let dense = crossing || t_eval.is_some_and(|te| next_out < te.len() && te[next_out] < t_new);
                 rk.finish_step(sys, t, y, &y_new, h_try, dense)?;
                 if crossing {

@@ -512,11 +512,46 @@ fn trajectories_out<'py>(py: Python<'py>, trs: Trajectories) -> PyResult<Bound<'
     Ok(d)
 }
 
-/// An event from the Python layer's normalised spec: `("flip", link | None, direction, terminal)`
-/// or `("linear", theta_coefficients, omega_coefficients, constant, direction, terminal)`.
-fn event_spec(spec: &Bound<'_, PyTuple>) -> PyResult<core::EventSpec> {
+/// A Python event function `g(t, theta, omega) -> float`; its exception is kept to re-raise.
+struct PyEvent {
+    f: Py<PyAny>,
+    error: std::sync::Arc<std::sync::Mutex<Option<PyErr>>>,
+}
+
+impl core::EventFn for PyEvent {
+    fn value(&self, t: f64, theta: &[f64], omega: &[f64]) -> core::Result<f64> {
+        Python::attach(|py| {
+            let r = self
+                .f
+                .call1(py, (t, vec_out(py, theta.to_vec()), vec_out(py, omega.to_vec())))
+                .and_then(|v| {
+                    v.extract::<f64>(py).map_err(|_| {
+                        InputError::new_err(format!(
+                            "the event function must return a number, got {}",
+                            v.bind(py).repr().map(|r| r.to_string()).unwrap_or_default()
+                        ))
+                    })
+                });
+            r.map_err(|e| {
+                *self.error.lock().unwrap_or_else(|p| p.into_inner()) = Some(e);
+                Error::Torque { t }
+            })
+        })
+    }
+}
+
+type EventErrors = std::sync::Arc<std::sync::Mutex<Option<PyErr>>>;
+
+/// An event from the Python layer's normalised spec: `("flip", link | None, direction, terminal)`,
+/// `("linear", theta_coefficients, omega_coefficients, constant, direction, terminal)` or
+/// `("callable", g, direction, terminal)`.
+fn event_spec(spec: &Bound<'_, PyTuple>, errors: &EventErrors) -> PyResult<core::EventSpec> {
     let kind: String = spec.get_item(0)?.extract()?;
     let (condition, rest) = match kind.as_str() {
+        "callable" => (
+            core::Condition::Custom(std::sync::Arc::new(PyEvent { f: spec.get_item(1)?.unbind(), error: errors.clone() })),
+            2,
+        ),
         "flip" => (core::Condition::Flip(spec.get_item(1)?.extract()?), 2),
         "linear" => (
             core::Condition::Linear {
@@ -564,6 +599,7 @@ fn simulate<'py>(
         Some("hamiltonian") => Some(Form::Hamiltonian),
         Some(other) => return Err(InputError::new_err(format!("form must be \"lagrangian\" or \"hamiltonian\", got {other:?}"))),
     };
+    let event_errors: EventErrors = Default::default();
     let settings = Settings {
         method: Method::parse(method).map_err(err)?,
         form,
@@ -573,7 +609,7 @@ fn simulate<'py>(
         adaptive,
         t_eval: t_eval.as_ref().map(|a| slice("t_eval", a).map(<[f64]>::to_vec)).transpose()?,
         max_steps,
-        events: events.unwrap_or_default().iter().map(event_spec).collect::<PyResult<_>>()?,
+        events: events.unwrap_or_default().iter().map(|e| event_spec(e, &event_errors)).collect::<PyResult<_>>()?,
     };
     let (theta0, omega0) = (slice("theta0", &theta0)?, slice("omega0", &omega0)?);
     let b = rows("theta0", theta0.len(), n)?;
@@ -582,6 +618,9 @@ fn simulate<'py>(
     let mut prog = Progress { every: Duration::from_millis(100), last: Instant::now(), t_end, callback: progress.as_ref() };
     let fail = |e: Error| -> PyErr {
         if let Some(p) = PENDING.with(|p| p.borrow_mut().take()) {
+            return p;
+        }
+        if let Some(p) = event_errors.lock().unwrap_or_else(|p| p.into_inner()).take() {
             return p;
         }
         torque_error(py, e, &slot)
