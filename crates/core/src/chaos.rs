@@ -6,7 +6,8 @@ use crate::dynamics::Workspace;
 use crate::error::{Error, Result};
 use crate::integrators::{FixedStep, Rk4};
 use crate::model::Chain;
-use crate::system::{OdeSystem, NON_FINITE};
+use crate::simulate::hermite;
+use crate::system::{singular, OdeSystem, NON_FINITE};
 use crate::torque::{Builtin, TorqueSource};
 
 /// The Lagrangian form with `k` tangent vectors riding along:
@@ -31,7 +32,7 @@ impl OdeSystem for Tangent<'_> {
             self.torque.eval(t, &y[..n], &y[n..2 * n], &mut self.tau)?;
         }
         dy[..n].copy_from_slice(&y[n..2 * n]);
-        let fail = |_| Error::integration(t, if y.iter().all(|v| v.is_finite()) { "singular mass matrix" } else { NON_FINITE });
+        let fail = |e| singular(t, y, e);
         let (head, tail) = dy.split_at_mut(2 * n);
         self.chain.accelerations_into(&y[..n], &y[n..2 * n], &self.tau, &mut head[n..], &mut self.ws).map_err(fail)?;
         for j in 0..self.k {
@@ -203,9 +204,10 @@ pub fn first_flips(
                         sys.rhs(t, &y0, &mut f0)?;
                         sys.rhs(t + dt, &y, &mut f1)?;
                         let theta_at = |x: f64| {
-                            let (x2, x3) = (x * x, x * x * x);
-                            (2.0 * x3 - 3.0 * x2 + 1.0) * y0[k] + (x3 - 2.0 * x2 + x) * dt * f0[k]
-                                + (-2.0 * x3 + 3.0 * x2) * y[k] + (x3 - x2) * dt * f1[k]
+                            let mut at = [0.0];
+                            let k1 = k..k + 1;
+                            hermite(&y0[k1.clone()], &f0[k1.clone()], &y[k1.clone()], &f1[k1], dt, x, &mut at);
+                            at[0]
                         };
                         let (mut lo, mut hi) = (0.0f64, 1.0f64);
                         for _ in 0..60 {

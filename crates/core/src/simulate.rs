@@ -165,7 +165,7 @@ impl Recorder {
 }
 
 /// Cubic Hermite interpolation between `(y0, f0)` and `(y1, f1)` over a step `h`, at fraction `x`.
-fn hermite(y0: &[f64], f0: &[f64], y1: &[f64], f1: &[f64], h: f64, x: f64, out: &mut [f64]) {
+pub(crate) fn hermite(y0: &[f64], f0: &[f64], y1: &[f64], f1: &[f64], h: f64, x: f64, out: &mut [f64]) {
     let (x2, x3) = (x * x, x * x * x);
     let (h00, h10, h01, h11) = (2.0 * x3 - 3.0 * x2 + 1.0, x3 - 2.0 * x2 + x, -2.0 * x3 + 3.0 * x2, x3 - x2);
     for m in 0..out.len() {
@@ -452,6 +452,25 @@ pub fn simulate<T: TorqueSource>(
     Ok(finish(chain, form, sys.tracks_work(), rec, hits, stats, &mut ws))
 }
 
+/// `omega` and `p` of a raw ODE state `y = [theta, omega or p, ...]` in the given form.
+fn fill_rates(chain: &Chain, form: Form, y: &[f64], omega: &mut [f64], p: &mut [f64], ws: &mut Workspace) {
+    let n = chain.n();
+    let theta = &y[..n];
+    match form {
+        Form::Lagrangian => {
+            omega.copy_from_slice(&y[n..2 * n]);
+            chain.momenta_into(theta, omega, p, ws);
+        }
+        Form::Hamiltonian => {
+            p.copy_from_slice(&y[n..2 * n]);
+            // Cannot fail: the same state passed through the right-hand side.
+            if chain.velocities_into(theta, p, omega, ws).is_err() {
+                omega.fill(f64::NAN);
+            }
+        }
+    }
+}
+
 /// Turn raw ODE states into theta, omega, p, energy and work rows.
 fn finish(chain: &Chain, form: Form, work: bool, rec: Recorder, hits: Vec<Hit>, mut stats: Stats, ws: &mut Workspace) -> Trajectory {
     let n = chain.n();
@@ -476,19 +495,7 @@ fn finish(chain: &Chain, form: Form, work: bool, rec: Recorder, hits: Vec<Hit>, 
         let theta = &y[..n];
         tr.theta.extend_from_slice(theta);
         let (omega, p) = (&mut tr.omega[r * n..(r + 1) * n], &mut tr.p[r * n..(r + 1) * n]);
-        match form {
-            Form::Lagrangian => {
-                omega.copy_from_slice(&y[n..2 * n]);
-                chain.momenta_into(theta, omega, p, ws);
-            }
-            Form::Hamiltonian => {
-                p.copy_from_slice(&y[n..2 * n]);
-                // Cannot fail: the same state passed through the right-hand side.
-                if chain.velocities_into(theta, p, omega, ws).is_err() {
-                    omega.fill(f64::NAN);
-                }
-            }
-        }
+        fill_rates(chain, form, y, omega, p, ws);
         let energy = chain.kinetic_energy(theta, omega, &mut scratch, ws) + chain.potential_energy(theta);
         tr.energy.push(energy);
         tr.work.push(if work { y[2 * n] } else { 0.0 });
@@ -496,18 +503,7 @@ fn finish(chain: &Chain, form: Form, work: bool, rec: Recorder, hits: Vec<Hit>, 
     for hit in hits {
         let theta = hit.y[..n].to_vec();
         let (mut omega, mut p) = (vec![0.0; n], vec![0.0; n]);
-        match form {
-            Form::Lagrangian => {
-                omega.copy_from_slice(&hit.y[n..2 * n]);
-                chain.momenta_into(&theta, &omega, &mut p, ws);
-            }
-            Form::Hamiltonian => {
-                p.copy_from_slice(&hit.y[n..2 * n]);
-                if chain.velocities_into(&theta, &p, &mut omega, ws).is_err() {
-                    omega.fill(f64::NAN);
-                }
-            }
-        }
+        fill_rates(chain, form, &hit.y, &mut omega, &mut p, ws);
         tr.events.push((hit.event, hit.t, theta, omega, p));
     }
     if let Some(&e0) = tr.energy.first() {

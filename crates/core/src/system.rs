@@ -60,7 +60,7 @@ impl<'c, T: TorqueSource> ChainSystem<'c, T> {
 }
 
 /// A failed pivot means either a non-finite state (a blow-up) or a truly singular configuration.
-fn singular(t: f64, y: &[f64], s: crate::dynamics::Singular) -> Error {
+pub(crate) fn singular(t: f64, y: &[f64], s: crate::dynamics::Singular) -> Error {
     if y.iter().all(|v| v.is_finite()) {
         Error::integration(t, s.reason())
     } else {
