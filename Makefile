@@ -9,7 +9,7 @@ WEB     := python/multipendulum/web
 CHROMIUM ?= /usr/bin/chromium
 export PATH := $(HOME)/.cargo/bin:$(PATH)
 
-.PHONY: setup build wasm browser demo test test-rust test-python bench clean
+.PHONY: setup build wasm browser demo test test-rust test-python fuzz bench clean
 
 $(PY):
 	python3 -m venv $(VENV)
@@ -50,10 +50,27 @@ test-rust:
 test-python: setup browser
 	$(PY) -m pytest -q
 
+# After the suites, both fuzz targets briefly, so CI exercises them (`make fuzz` runs longer).
 test: test-rust test-python
+	$(MAKE) --no-print-directory fuzz FUZZ_SECONDS=30
 
+# Fuzz the scenario parser and the core's constructors with atheris (libFuzzer), FUZZ_SECONDS
+# each; seeds in fuzz/corpus, new inputs in out/fuzz/, a crash in out/fuzz/crash-*. Without
+# atheris this fails: it never skips.
+FUZZ_SECONDS ?= 60
+FUZZ_FLAGS = -max_total_time=$(FUZZ_SECONDS) -timeout=30 -rss_limit_mb=4096 -artifact_prefix=out/fuzz/
+fuzz: setup
+	@$(PY) -c "import atheris" 2>/dev/null || $(PY) -m pip install -q atheris \
+	  || { echo "error: atheris could not be installed: the fuzz targets cannot run"; exit 1; }
+	@mkdir -p out/fuzz/scenario out/fuzz/core
+	$(PY) fuzz/fuzz_scenario.py $(FUZZ_FLAGS) out/fuzz/scenario fuzz/corpus
+	$(PY) fuzz/fuzz_core.py $(FUZZ_FLAGS) out/fuzz/core fuzz/corpus
+
+# Benchmarks against every peer (bench/RESULTS.md, bench/img/): the peers go into their own
+# bench/.venv (bench/requirements.txt), not into $(VENV). `make bench QUICK=1`: under 5 minutes.
+BENCH_ARGS ?= $(if $(QUICK),--quick)
 bench: setup
-	$(PY) bench/bench_engine.py
+	bench/run $(BENCH_ARGS)
 
 clean:
 	rm -rf $(VENV) target out $(WEB)/multipendulum.wasm

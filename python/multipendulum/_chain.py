@@ -1,32 +1,54 @@
 """The chain model: a thin layer over the Rust core that converts and reshapes arrays."""
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from . import _core
+from ._convert import as_float, as_floats
 from ._torque import normalise_torque
 from .errors import InputError
 
 ALGORITHMS = ("recursive", "cholesky", "cramer")
 # The reference routes cost O(N^4) (Cramer) and O(N^3) (dense Cholesky): refuse sizes that would hang.
 REFERENCE_LIMITS = {"cramer": 12, "cholesky": 2000}
+MAX_STATE = 1e15  # the core's model::MAX_STATE, for angles
+
+
+def _finite_result(out: np.ndarray, what: str) -> np.ndarray:
+    """Finite inputs can still overflow (huge masses times huge rates): say so, never return NaN."""
+    if not math.isfinite(np.vdot(out, out)) and not np.isfinite(out).all():
+        raise InputError(f"the {what} overflow for these inputs (non-finite result): the chain's masses, "
+                         "lengths, g, the state or the torque are too large together")
+    return out
+
+
+def check_chain(chain) -> None:
+    if not isinstance(chain, Chain):
+        raise InputError(f"chain must be a multipendulum.Chain, got {type(chain).__name__}")
 
 
 def as_state(x, name: str, n: int) -> np.ndarray:
     """float64, C-contiguous, last axis of length n (leading axes are a batch)."""
-    try:
-        a = np.ascontiguousarray(x, dtype=np.float64)
-    except (TypeError, ValueError) as e:
-        raise InputError(f"{name} must be an array of numbers, got {type(x).__name__}: {e}") from None
+    a = as_floats(x, name)
     if a.ndim == 0 and n == 1:
         a = a.reshape(1)
     if a.ndim == 0 or a.shape[-1] != n:
         raise InputError(f"{name} must have shape ({n},) or (..., {n}) (one entry per link), got shape {a.shape}")
-    bad = ~np.isfinite(a)
-    if bad.any():
-        idx = tuple(int(i) for i in np.argwhere(bad)[0])
-        where = idx[0] if len(idx) == 1 else idx
-        raise InputError(f"{name}[{where}] must be finite, got {a[idx]}")
+    # Angles as the core bounds them (model.rs MAX_STATE): differences of huge angles overflow to
+    # NaN. Rates and momenta are not bounded: too large, they fail as an overflow or a blow-up.
+    # This is on every call's path, so first one cheap test that any NaN or inf fails (and a sum
+    # of squares that overflows only sends finite input on to the exact test); details on failure.
+    theta = "theta" in name
+    squares = np.vdot(a, a)
+    if squares <= MAX_STATE**2 if theta else math.isfinite(squares):
+        return a
+    for bad, what in ((~np.isfinite(a), "must be finite"),
+                      (np.abs(a) > MAX_STATE if theta else np.zeros(a.shape, bool), f"must be within +-{MAX_STATE:.0e} rad")):
+        if bad.any():
+            idx = tuple(int(i) for i in np.argwhere(bad)[0])
+            raise InputError(f"{name}[{idx[0] if len(idx) == 1 else idx}] {what}, got {a[idx]}")
     return a
 
 
@@ -56,20 +78,20 @@ class Chain:
     def __init__(self, lengths, masses, com=None, inertia=None, g=9.81):
         args = {}
         for name, v in (("lengths", lengths), ("masses", masses), ("com", com), ("inertia", inertia)):
-            if v is None:
+            if v is None and name in ("com", "inertia"):
                 args[name] = None
                 continue
-            a = np.asarray(v, dtype=np.float64) if not isinstance(v, np.ndarray) else v.astype(np.float64)
+            a = as_floats(v, name)
             if a.ndim != 1:
                 raise InputError(f"{name} must be a 1-D sequence of numbers, got shape {a.shape}")
             args[name] = a.tolist()
-        self._c = _core.Chain(args["lengths"], args["masses"], args["com"], args["inertia"], float(g))
+        self._c = _core.Chain(args["lengths"], args["masses"], args["com"], args["inertia"], as_float(g, "g"))
 
     @classmethod
     def rods(cls, lengths, masses, g=9.81) -> "Chain":
         """Uniform rods (seed 001's arms): centre of mass mid-link, inertia m l^2 / 12."""
-        lengths = np.asarray(lengths, dtype=np.float64)
-        masses = np.asarray(masses, dtype=np.float64)
+        lengths = as_floats(lengths, "lengths")
+        masses = as_floats(masses, "masses")
         if lengths.shape != masses.shape:
             raise InputError(f"masses must have {lengths.size} entries (one per link), got {masses.size}")
         return cls(lengths, masses, com=lengths / 2, inertia=masses * lengths**2 / 12, g=g)
@@ -114,7 +136,7 @@ class Chain:
     def mass_matrix(self, theta) -> np.ndarray:
         """The symmetric positive definite mass matrix A(theta), shape (..., N, N)."""
         (th,) = self._states(theta=theta)
-        return self._c.mass_matrix(th.ravel()).reshape(th.shape + (self.n,))
+        return _finite_result(self._c.mass_matrix(th.ravel()), "mass matrix").reshape(th.shape + (self.n,))
 
     def accelerations(self, theta, omega, t=0.0, torque=None, joint_torque=None, algorithm="recursive"):
         """theta_ddot, shape (..., N), by the O(N) recursion (or a reference route:
@@ -133,8 +155,8 @@ class Chain:
         if limit is not None and self.n > limit:
             raise InputError(f"algorithm {algorithm!r} is a reference route for N <= {limit}, got N = {self.n}; "
                              "use the default \"recursive\" (O(N))")
-        out = self._c.accelerations(th.ravel(), om.ravel(), float(t), spec, joint, algorithm)
-        return out.reshape(th.shape)
+        out = self._c.accelerations(th.ravel(), om.ravel(), as_float(t, "t", finite=True), spec, joint, algorithm)
+        return _finite_result(out, "accelerations").reshape(th.shape)
 
     def jacobian(self, theta, omega, t=0.0, torque=None, joint_torque=None) -> np.ndarray:
         """The exact Jacobian (2N, 2N) of ``(theta_dot, omega_dot)`` with respect to
@@ -144,28 +166,31 @@ class Chain:
         if th.ndim != 1:
             raise InputError(f"theta must have shape ({self.n},) for a Jacobian, got {th.shape}")
         spec, joint = normalise_torque(torque, joint_torque, self.n)
-        return self._c.jacobian(th.tolist(), om.tolist(), float(t), spec, joint).reshape(2 * self.n, 2 * self.n)
+        out = self._c.jacobian(th.tolist(), om.tolist(), as_float(t, "t", finite=True), spec, joint)
+        return _finite_result(out, "Jacobian").reshape(2 * self.n, 2 * self.n)
 
     def hamilton(self, theta, p, t=0.0, torque=None, joint_torque=None):
         """Hamilton's equations: ``(theta_dot, p_dot)``, each of shape (..., N)."""
         th, pp = self._states(theta=theta, p=p)
         spec, joint = normalise_torque(torque, joint_torque, self.n)
-        td, pd = self._c.hamilton(th.ravel(), pp.ravel(), float(t), spec, joint)
+        td, pd = self._c.hamilton(th.ravel(), pp.ravel(), as_float(t, "t", finite=True), spec, joint)
+        td, pd = _finite_result(td, "rates theta_dot"), _finite_result(pd, "rates p_dot")
         return td.reshape(th.shape), pd.reshape(th.shape)
 
     def momenta(self, theta, omega) -> np.ndarray:
         """Canonical momenta p = A(theta) omega, shape (..., N)."""
         th, om = self._states(theta=theta, omega=omega)
-        return self._c.momenta(th.ravel(), om.ravel()).reshape(th.shape)
+        return _finite_result(self._c.momenta(th.ravel(), om.ravel()), "momenta").reshape(th.shape)
 
     def velocities(self, theta, p) -> np.ndarray:
         """Angular velocities omega = A(theta)^-1 p, shape (..., N)."""
         th, pp = self._states(theta=theta, p=p)
-        return self._c.velocities(th.ravel(), pp.ravel()).reshape(th.shape)
+        return _finite_result(self._c.velocities(th.ravel(), pp.ravel()), "velocities").reshape(th.shape)
 
     def _energies(self, theta, omega):
         th, om = self._states(theta=theta, omega=omega)
         kin, pot = self._c.energies(th.ravel(), om.ravel())
+        kin, pot = _finite_result(kin, "kinetic energy"), _finite_result(pot, "potential energy")
         shape = th.shape[:-1]
         return kin.reshape(shape), pot.reshape(shape)
 

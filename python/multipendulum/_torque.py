@@ -6,11 +6,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._convert import as_floats
 from .errors import InputError
 
 
 def _per_link(x, name, n):
-    a = np.broadcast_to(np.asarray(x, dtype=np.float64), (n,)) if np.ndim(x) == 0 else np.asarray(x, dtype=np.float64)
+    a = as_floats(x, name)
+    a = np.broadcast_to(a, (n,)) if a.ndim == 0 else a
     if a.shape != (n,):
         raise InputError(f"{name} must be a number or have {n} entries (one per link), got shape {a.shape}")
     return a.tolist()
@@ -41,8 +43,11 @@ class Table:
     kind: str = "linear"
 
     def _spec(self, n):
-        t = np.asarray(self.t, dtype=np.float64)
-        v = np.asarray(self.values, dtype=np.float64)
+        t = as_floats(self.t, "t")
+        v = as_floats(self.values, "values")
+        if self.kind not in ("linear", "cubic"):
+            got = f'"{self.kind}"' if isinstance(self.kind, str) else repr(self.kind)
+            raise InputError(f'kind must be "linear" or "cubic", got {got}')
         if v.ndim == 1 and n == 1:
             v = v[:, None]
         if t.ndim != 1 or v.shape != (t.size, n):
@@ -78,7 +83,7 @@ def normalise_torque(torque, joint_torque, n):
         return x._spec(n), joint
     if callable(x):
         return ("callable", x, _arity(x)), joint
-    a = np.asarray(x, dtype=np.float64)
+    a = as_floats(x, name)
     if a.shape != (n,) and not (n == 1 and a.ndim == 0):
         raise InputError(f"{name} must have {n} entries (one per link), got shape {a.shape}")
     a = a.reshape(n)

@@ -7,7 +7,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import _core
-from ._chain import Chain, as_state
+from ._chain import Chain, as_state, check_chain
+from ._convert import as_float, as_floats
 from ._torque import normalise_torque
 from .errors import InputError
 
@@ -49,17 +50,21 @@ def lyapunov(chain: Chain, theta0, omega0, t_end, dt=0.005, k=None, renorm_every
     >>> bool(res.largest > 0.5)
     True
     """
+    check_chain(chain)
     th0, om0 = as_state(theta0, "theta0", chain.n), as_state(omega0, "omega0", chain.n)
     if th0.ndim != 1 or om0.ndim != 1:
         raise InputError(f"theta0 and omega0 must have shape ({chain.n},)")
     k = 2 * chain.n if k is None else k
-    if not isinstance(k, (int, np.integer)):
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)):
         raise InputError(f"k must be an integer between 1 and 2N = {2 * chain.n}, got {k!r}")
-    if not isinstance(renorm_every, (int, np.integer)) or renorm_every < 1:
+    if not 1 <= k <= 2 * chain.n:
+        raise InputError(f"k must be between 1 and 2N = {2 * chain.n}, got {k}")
+    if isinstance(renorm_every, bool) or not isinstance(renorm_every, (int, np.integer)) \
+            or not 1 <= renorm_every < 2**64:
         raise InputError(f"renorm_every must be a positive integer (steps), got {renorm_every!r}")
     spec, joint = normalise_torque(torque, None, chain.n)
-    exps, times, hist = _core.lyapunov(chain._c, th0.tolist(), om0.tolist(), float(t_end), float(dt), int(k),
-                                       int(renorm_every), spec)
+    exps, times, hist = _core.lyapunov(chain._c, th0.tolist(), om0.tolist(), as_float(t_end, "t_end"),
+                                       as_float(dt, "dt"), int(k), int(renorm_every), spec)
     return LyapunovResult(exps, times, hist.reshape(times.size, int(k)))
 
 
@@ -74,6 +79,7 @@ def trustworthy_until(lyapunov_exponent: float, tolerance: float = 1e-2, eps: fl
 def flip_energy_threshold(chain: Chain, link=None) -> float:
     """The least energy (J) with which link ``link`` (None: any link) can go over the top:
     ``g h_k - g sum_{i != k} |h_i|``. A chain released with less can never flip it."""
+    check_chain(chain)
     return _core.flip_energy_threshold(chain._c, _link(link, chain.n))
 
 
@@ -81,12 +87,14 @@ def flip_times(chain: Chain, theta0, omega0=None, t_max=10.0, dt=0.01, link=None
     """First time each initial state's link ``link`` (None: any link) reaches |theta| = pi,
     by rk4 at step ``dt`` and root finding within the step; ``inf`` where it never does by
     ``t_max``. ``theta0`` (..., N); ``omega0`` defaults to rest. Parallel on all cores."""
+    check_chain(chain)
     th0 = as_state(theta0, "theta0", chain.n)
     om0 = np.zeros_like(th0) if omega0 is None else as_state(omega0, "omega0", chain.n)
     if th0.shape != om0.shape:
         raise InputError(f"theta0 and omega0 must have the same shape, got {th0.shape} and {om0.shape}")
     spec, _ = normalise_torque(torque, None, chain.n)
-    out = _core.first_flips(chain._c, th0.ravel(), om0.ravel(), float(t_max), float(dt), _link(link, chain.n), spec)
+    out = _core.first_flips(chain._c, th0.ravel(), om0.ravel(), as_float(t_max, "t_max"), as_float(dt, "dt"),
+                            _link(link, chain.n), spec)
     return out.reshape(th0.shape[:-1])
 
 
@@ -144,8 +152,12 @@ def flip_map(chain: Chain, x, y, t_max=10.0, dt=0.01, vary=("theta", 0, "theta",
     the initial state is ``base_theta`` / ``base_omega`` (default 0). Under a ``torque`` the chain
     can gain energy, so no cell is marked impossible (``threshold = -inf``).
     """
-    x, y = np.asarray(x, dtype=float).ravel(), np.asarray(y, dtype=float).ravel()
+    check_chain(chain)
+    x, y = as_floats(x, "x").ravel(), as_floats(y, "y").ravel()
     n = chain.n
+    # The grid's initial states (2N), times, energies and flags per cell, before they are made.
+    _core.check_memory(float(x.size) * y.size * (2 * n + 3) * 8.0, f"a flip map of {y.size} x {x.size} cells",
+                       "use fewer points in x and y, or mp.sweep_flip_map, which works chunk by chunk")
     th_base = np.zeros(n) if base_theta is None else as_state(base_theta, "base_theta", n)
     om_base = np.zeros(n) if base_omega is None else as_state(base_omega, "base_omega", n)
     vary = _check_vary(vary, n)
@@ -174,6 +186,7 @@ def poincare(chain: Chain, theta0, omega0, t_end, through=0, record=1, rtol=1e-1
     (several energies), run in parallel; returns a list of :class:`PoincareSection`."""
     from ._simulate import Crossing, simulate
 
+    check_chain(chain)
     n = chain.n
     for name, k in (("through", through), ("record", record)):
         if not isinstance(k, (int, np.integer)) or not 0 <= k < n:
@@ -182,7 +195,8 @@ def poincare(chain: Chain, theta0, omega0, t_end, through=0, record=1, rtol=1e-1
     om0 = as_state(omega0, "omega0", n)
     coef = np.zeros(n)
     coef[through] = 1.0
-    sol = simulate(chain, th0, om0, t_end, rtol=rtol, atol=atol, t_eval=[float(t_end)], events=[Crossing(theta=coef)])
+    t_end = as_float(t_end, "t_end")
+    sol = simulate(chain, th0, om0, t_end, rtol=rtol, atol=atol, t_eval=[t_end], events=[Crossing(theta=coef)])
     runs = sol.events if th0.ndim == 2 else [sol.events]
     energies = np.atleast_1d(sol.energy[..., 0])
     return [PoincareSection(r[0].t, r[0].theta[:, record], r[0].p[:, record], float(e), record, through)
@@ -238,11 +252,13 @@ def ensemble(chain: Chain, theta0, omega0, t_end, method="dop853", dt=None, rtol
     O(B N steps). Results are identical whatever the number of threads."""
     from ._simulate import Flip, simulate
 
+    check_chain(chain)
+    t_end = as_float(t_end, "t_end")
     th0, om0 = as_state(theta0, "theta0", chain.n), as_state(omega0, "omega0", chain.n)
     if th0.ndim != 2 or th0.shape != om0.shape:
         raise InputError(f"theta0 and omega0 must both have shape (B, {chain.n}), got {th0.shape} and {om0.shape}")
     sol = simulate(chain, th0, om0, t_end, method=method, dt=dt, rtol=rtol, atol=atol, torque=torque,
-                   joint_torque=joint_torque, t_eval=[float(t_end)], events=[Flip(terminal=False)])
+                   joint_torque=joint_torque, t_eval=[t_end], events=[Flip(terminal=False)])
     first = np.array([rec[0].t[0] if rec[0].t.size else np.inf for rec in sol.events])
     return EnsembleResult(float(t_end), sol.theta[:, -1], sol.omega[:, -1], sol.p[:, -1],
                           np.asarray(sol.stats.energy_error), np.asarray(sol.stats.steps), first)

@@ -274,13 +274,20 @@ def loads_scenario(
     path: Optional[PathLike] = None,
     files: Optional[Mapping[str, str]] = None,
 ) -> Scenario:
-    """Check a scenario given as TOML text.
+    """Check a scenario given as TOML text (a ``str``, or UTF-8 ``bytes``).
 
     ``files`` maps file names used in the text (a torque table) to their contents; it lets a
     scenario stored in a results file be rerun without the original files. Names not in it are
     read from ``base_dir``.
     """
     path = None if path is None else Path(path)
+    if isinstance(text, (bytes, bytearray)):
+        try:
+            text = bytes(text).decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise ScenarioError(f"scenario is not UTF-8 text: {exc}", path=path) from exc
+    if not isinstance(text, str):
+        raise ScenarioError(f"scenario text must be a str, got {type(text).__name__}", path=path)
     try:
         raw = _toml.loads(text)
     except _toml.TOMLDecodeError as exc:

@@ -1,6 +1,11 @@
 //! The validated, immutable chain: constant parameters only (work buffers live in `Workspace`).
 use crate::error::{check_finite, check_len, Error, Result};
 
+/// The largest angle (rad) a state may hold: beyond it an angle has
+/// no digits left below a turn, and differences of angles (`cos(theta_a - theta_b)`) overflow
+/// to NaN near 1e308.
+pub const MAX_STATE: f64 = 1e15;
+
 /// A planar chain of `n` rigid links hanging from a fixed pivot at the origin.
 ///
 /// Link `i` has length `l_i` (pivot to the next joint), mass `m_i`, centre of mass at `c_i` from
@@ -69,6 +74,14 @@ impl Chain {
             below += masses[i];
         }
         check_finite("mass matrix diagonal", &diag)?;
+        // Gravity torques g h_i, and their sum in the recursion, must stay finite.
+        let moment: f64 = h.iter().sum();
+        if !(g * moment * n as f64).is_finite() {
+            return Err(Error::input(format!(
+                "g = {g} with these masses and lengths overflows the gravity torques (g * sum of m c + l m_below = {:e})",
+                g * moment
+            )));
+        }
         let chain = Chain { lengths: lengths.to_vec(), masses: masses.to_vec(), com, inertia, g, h, diag };
         chain.check_nonsingular()?;
         Ok(chain)
@@ -132,10 +145,21 @@ impl Chain {
         self.g
     }
 
-    /// Refuse a state of the wrong size or with NaN/inf, naming it.
+    /// Refuse a state of the wrong size or with NaN/inf, naming it; angles (`theta...`) also
+    /// beyond [`MAX_STATE`].
     pub fn check_state(&self, name: &str, values: &[f64]) -> Result<()> {
         check_len(name, values, self.n())?;
-        check_finite(name, values)
+        check_finite(name, values)?;
+        if !name.starts_with("theta") {
+            return Ok(());
+        }
+        match values.iter().position(|v| v.abs() > MAX_STATE) {
+            Some(i) => Err(Error::input(format!(
+                "{name}[{i}] must be within +-{MAX_STATE:e} rad, got {}",
+                values[i]
+            ))),
+            None => Ok(()),
+        }
     }
 }
 

@@ -1,0 +1,42 @@
+"""Argument conversion shared by the API: numbers and arrays of numbers, or InputError.
+
+The package's contract: a bad argument value raises :class:`InputError` (a ``ValueError``)
+whatever its type -- a string, None, a ragged list, a complex number, an integer too large for
+a float. ``TypeError`` is left to Python itself, for calls with missing or unknown arguments.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .errors import InputError
+
+
+def _shown(x) -> str:
+    text = repr(x)
+    return f"{type(x).__name__} {text if len(text) <= 60 else text[:57] + '...'}"
+
+
+def as_floats(x, name: str) -> np.ndarray:
+    """float64, C-contiguous, from a number or a (nested, rectangular) sequence of real numbers;
+    anything else is an :class:`InputError` naming ``name``."""
+    try:
+        a = np.asarray(x)
+    except (TypeError, ValueError, OverflowError) as e:
+        raise InputError(f"{name} must be an array of numbers, got {_shown(x)}: {e}") from None
+    if a.dtype.kind not in "biuf":
+        raise InputError(f"{name} must be an array of numbers, got {_shown(x)}")
+    return np.asarray(a, dtype=np.float64, order="C")
+
+
+def as_float(x, name: str, finite: bool = False) -> float:
+    """A single real number (NaN and inf pass unless ``finite``: the core checks its ranges)."""
+    if type(x) is float and (not finite or math.isfinite(x)):
+        return x  # the common case, without NumPy's overhead
+    a = as_floats(x, name)
+    if a.ndim != 0:
+        raise InputError(f"{name} must be a number, got {_shown(x)}")
+    if finite and not np.isfinite(a):
+        raise InputError(f"{name} must be finite, got {float(a)}")
+    return float(a)
