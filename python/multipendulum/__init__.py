@@ -11,6 +11,7 @@ from importlib.metadata import PackageNotFoundError, version as _version
 from ._chain import Chain
 from ._simulate import METHOD_INFO, METHODS, Crossing, Event, EventRecord, Flip, Solution, Stats, simulate
 from ._torque import Sinusoid, Table
+from .checkpoint import load_checkpoint, resume
 from .chaos import EnsembleResult, FlipMap, LyapunovResult, ensemble, PoincareSection, plot_poincare, poincare, flip_energy_threshold, flip_map, flip_times, lyapunov, trustworthy_until
 from .errors import InputError, IntegrationError
 from .modes import NormalModes, linearize, normal_modes
@@ -22,7 +23,7 @@ except PackageNotFoundError:  # pragma: no cover - running from a source tree wi
     __version__ = "0.0.0"
 
 __all__ = [
-    "Chain", "simulate", "Solution", "Stats", "Flip", "Crossing", "Event", "EventRecord", "METHODS", "METHOD_INFO", "Sinusoid", "Table",
+    "Chain", "simulate", "resume", "load_checkpoint", "Solution", "Stats", "Flip", "Crossing", "Event", "EventRecord", "METHODS", "METHOD_INFO", "Sinusoid", "Table",
     "InputError", "IntegrationError", "__version__",
     "normal_modes", "NormalModes", "linearize", "animate_mode", "plot_modes",
     "sweep", "sweep_flip_map", "open_flip_map", "plot_flip_map",

@@ -1,6 +1,7 @@
 """`simulate`: one run, or a batch run in parallel, of the Rust integrators."""
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass
 
@@ -8,8 +9,9 @@ import numpy as np
 
 from . import _core
 from ._chain import Chain, as_state
+from ._convert import as_float, as_floats
 from ._torque import normalise_torque
-from .errors import InputError
+from .errors import InputError, IntegrationError
 
 METHODS = tuple(_core.METHODS)
 #: Per method: declared ``order``, ``symplectic``, ``adaptive``, ``implicit`` (from the core).
@@ -28,7 +30,7 @@ class Flip:
     def _spec(self, n):
         if self.link is not None and not (isinstance(self.link, (int, np.integer)) and 0 <= self.link < n):
             raise InputError(f"Flip.link must be an integer in [0, {n}) or None, got {self.link!r}")
-        return ("flip", None if self.link is None else int(self.link), int(self.direction), bool(self.terminal))
+        return ("flip", None if self.link is None else int(self.link), _direction(self.direction), bool(self.terminal))
 
 
 @dataclass(frozen=True)
@@ -46,11 +48,12 @@ class Crossing:
     def _spec(self, n):
         coef = []
         for name, v in (("theta", self.theta), ("omega", self.omega)):
-            a = np.zeros(n) if v is None else np.asarray(v, dtype=np.float64)
+            a = np.zeros(n) if v is None else as_floats(v, f"Crossing.{name}")
             if a.shape != (n,):
                 raise InputError(f"Crossing.{name} must have {n} coefficients (one per link), got shape {a.shape}")
             coef.append(a.tolist())
-        return ("linear", coef[0], coef[1], float(self.constant), int(self.direction), bool(self.terminal))
+        return ("linear", coef[0], coef[1], as_float(self.constant, "Crossing.constant"), _direction(self.direction),
+                bool(self.terminal))
 
 
 @dataclass(frozen=True)
@@ -67,9 +70,13 @@ class Event:
     def _spec(self, n):
         if not callable(self.g):
             raise InputError(f"Event.g must be callable as g(t, theta, omega), got {type(self.g).__name__}")
-        if self.direction not in (-1, 0, 1):
-            raise InputError(f"direction must be -1, 0 or +1, got {self.direction!r}")
-        return ("callable", self.g, int(self.direction), bool(self.terminal))
+        return ("callable", self.g, _direction(self.direction), bool(self.terminal))
+
+
+def _direction(d) -> int:
+    if isinstance(d, bool) or not isinstance(d, (int, np.integer)) or d not in (-1, 0, 1):
+        raise InputError(f"direction must be -1, 0 or +1, got {d!r}")
+    return int(d)
 
 
 @dataclass(frozen=True)
@@ -179,7 +186,8 @@ class Solution:
 
 def simulate(chain: Chain, theta0, omega0, t_end, method="dop853", dt=None, rtol=1e-10, atol=1e-12,
              torque=None, joint_torque=None, t_eval=None, form=None, adaptive=True,
-             max_steps=100_000_000, progress=None, events=None) -> Solution:
+             max_steps=100_000_000, progress=None, events=None, checkpoint=None, checkpoint_every=None,
+             checkpoint_seconds=None, checkpoint_info=None) -> Solution:
     """Integrate ``chain`` from ``(theta0, omega0)`` at t = 0 to ``t_end`` (seconds).
 
     Methods (:data:`METHODS`): ``"rk4"`` classical Runge–Kutta, order 4, fixed ``dt``;
@@ -203,6 +211,14 @@ def simulate(chain: Chain, theta0, omega0, t_end, method="dop853", dt=None, rtol
     dense output; ``sol.events[i]`` holds event i's crossings, ``sol.stopped_at`` the time a
     terminal one ended the run.
 
+    ``checkpoint``: a file to which the run's complete state is written every
+    ``checkpoint_every`` steps and/or every ``checkpoint_seconds`` of wall time (default: every
+    60 s), and once more when the run is interrupted (Ctrl-C); :func:`resume` continues from it
+    and returns bit-for-bit the arrays this call would have. Atomic: the file is always a
+    complete archive. ``checkpoint_info``: a JSON-ready dict kept in it (the CLI keeps the
+    scenario). Not with a batch, a Python torque function or events (refused). See
+    :mod:`multipendulum.checkpoint`.
+
     Raises :class:`InputError` for bad input, :class:`IntegrationError` (with ``.t``) when the
     run cannot continue; a torque function's own exception passes through.
 
@@ -221,21 +237,26 @@ def simulate(chain: Chain, theta0, omega0, t_end, method="dop853", dt=None, rtol
     if th0.ndim > 2:
         raise InputError(f"theta0 must have shape ({chain.n},) or (B, {chain.n}), got {th0.shape}")
     batch_shape = th0.shape[:-1]
-    if not isinstance(method, str):
-        raise InputError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
-    try:
-        t_end = float(t_end)
-        dt = None if dt is None else float(dt)
-        rtol, atol = float(rtol), float(atol)
-    except (TypeError, ValueError) as e:
-        raise InputError(f"t_end, dt, rtol and atol must be numbers: {e}") from None
+    if not isinstance(method, str) or method not in METHODS:
+        got = f'"{method}"' if isinstance(method, str) else repr(method)
+        raise InputError(f"method must be one of {', '.join(METHODS)}, got {got}")
+    t_end = as_float(t_end, "t_end")
+    dt = None if dt is None else as_float(dt, "dt")
+    rtol, atol = as_float(rtol, "rtol", finite=True), as_float(atol, "atol", finite=True)
     if t_eval is not None:
-        t_eval = np.ascontiguousarray(t_eval, dtype=np.float64).ravel()
+        t_eval = as_floats(t_eval, "t_eval").ravel()
+    if form not in (None, "lagrangian", "hamiltonian"):
+        got = f'"{form}"' if isinstance(form, str) else repr(form)
+        raise InputError(f'form must be "lagrangian" or "hamiltonian", got {got}')
+    if not isinstance(adaptive, (bool, np.bool_)):
+        raise InputError(f"adaptive must be True or False, got {adaptive!r}")
     if progress is not None and not callable(progress):
         raise InputError(f"progress must be callable, got {type(progress).__name__}")
-    if not isinstance(max_steps, (int, np.integer)) or max_steps <= 0:
-        raise InputError(f"max_steps must be a positive integer, got {max_steps!r}")
+    if not isinstance(max_steps, (int, np.integer)) or not 0 < max_steps < 2**64:
+        raise InputError(f"max_steps must be a positive integer below 2^64, got {max_steps!r}")
     spec, joint = normalise_torque(torque, joint_torque, chain.n)
+    if events is not None and not isinstance(events, (list, tuple)):
+        raise InputError(f"events must be a list of mp.Flip, mp.Crossing or mp.Event, got {type(events).__name__}")
     events = list(events or [])
     for e in events:
         if not isinstance(e, (Flip, Crossing, Event)):
@@ -244,13 +265,68 @@ def simulate(chain: Chain, theta0, omega0, t_end, method="dop853", dt=None, rtol
             raise InputError("a Python event function (mp.Event) runs in single runs only; "
                              "use mp.Flip or mp.Crossing for batches")
     event_specs = [e._spec(chain.n) for e in events]
+    run = dict(method=method, form=form, t_end=t_end, dt=dt, rtol=rtol, atol=atol, adaptive=bool(adaptive),
+               max_steps=int(max_steps), torque=spec, joint=joint, has_t_eval=t_eval is not None)
+    writer = None
+    if checkpoint is not None:
+        from .checkpoint import Writer, cadence
+
+        if batch_shape:
+            raise InputError(f"checkpoints are for single runs; theta0 has a batch axis, shape {th0.shape}")
+        if spec is not None and spec[0] == "callable":
+            raise InputError("checkpoints need a built-in torque (an array, mp.Sinusoid, mp.Table): "
+                             "a Python torque function cannot be saved")
+        if events:
+            raise InputError("checkpoints cannot be combined with events (the event tracker's state is not saved)")
+        if not isinstance(checkpoint, (str, os.PathLike)):
+            raise InputError(f"checkpoint must be a file path, got {type(checkpoint).__name__}")
+        every_steps, every_seconds = cadence(checkpoint_every, checkpoint_seconds)
+        writer = Writer(checkpoint, chain, th0, om0, t_eval, run, every_steps, every_seconds, info=checkpoint_info)
+    elif checkpoint_every is not None or checkpoint_seconds is not None:
+        raise InputError("checkpoint_every / checkpoint_seconds need checkpoint=FILE")
+    sol = _run(chain, th0, om0, run, t_eval, progress, event_specs, writer, batch_shape=batch_shape)
+    sol._torque = joint_torque if joint else torque
+    return sol
+
+
+def _refuse_nan(data):
+    """A last guard against a silent NaN: a run that blew up between its checks (e.g. dop853's
+    dense output over a step whose rates overflow) fails as an IntegrationError at that time."""
+    for name in ("theta", "omega", "p", "energy"):
+        bad = np.isnan(data[name])
+        if bad.any():
+            t = data["t"]
+            per_row = max(1, data[name].size // max(1, data["energy"].size))  # N, or 1 for energy
+            row = int(np.argmax(bad)) // per_row  # rows run (B, T) in order
+            when = float(t[row % t.size]) if t.size else 0.0
+            err = IntegrationError(f"integration failed at t = {when}: {name} became NaN (the motion blew up; "
+                                   "reduce dt or the tolerances, or start from smaller rates)")
+            err.t = when
+            raise err
+
+
+def _run(chain, th0, om0, run, t_eval, progress, event_specs=(), writer=None, resume=None, wall_before=0.0,
+         batch_shape=()):
+    """Call the core with checked arguments (``run``: as stored in a checkpoint archive)."""
+    spec = run["torque"]
+    spec = None if spec is None else tuple(spec)
+    ckpt = None if writer is None else (writer.every_steps or 0, writer.every_seconds, writer)
     start = time.perf_counter()
-    data = _core.simulate(chain._c, th0.ravel(), om0.ravel(), t_end, method, form, dt, rtol, atol,
-                          bool(adaptive), t_eval, int(max_steps), spec, joint, progress, event_specs)
-    wall = time.perf_counter() - start
+    data = _core.simulate(chain._c, np.ascontiguousarray(th0, dtype=np.float64).ravel(),
+                          np.ascontiguousarray(om0, dtype=np.float64).ravel(), run["t_end"], run["method"],
+                          run["form"], run["dt"], run["rtol"], run["atol"], run["adaptive"], t_eval,
+                          run["max_steps"], spec, run["joint"], progress, list(event_specs), ckpt, resume)
+    wall = wall_before + time.perf_counter() - start
     if progress is not None:
         progress(1.0)
+    _refuse_nan(data)
     stats = Stats._from(data["stats"], bool(batch_shape), wall)
-    sol = Solution(chain, method, data["form"], data, batch_shape, stats, len(events))
-    sol._torque, sol._joint, sol._rtol = (joint_torque if joint else torque), joint, rtol
+    sol = Solution(chain, run["method"], data["form"], data, batch_shape, stats, len(event_specs))
+    sol._joint, sol._rtol = run["joint"], run["rtol"]
+    if spec is not None and spec[0] != "callable":
+        from .checkpoint import torque_object
+
+        sol._torque = torque_object(spec, chain.n)
+    else:
+        sol._torque = None
     return sol

@@ -7,11 +7,14 @@ adds its parser and sets its handler; adding a subcommand means adding one such 
 Handlers return the exit status.
 
 Exit status: 0 on success, 1 for a bad scenario, bad input or a failed integration (the message
-names the problem and nothing is written), 2 for bad command-line usage, 130 when interrupted.
+names the problem and nothing is written), 2 for bad command-line usage, 130 when interrupted
+(Ctrl-C), 143 when a checkpointed run is stopped by SIGTERM.
 """
 from __future__ import annotations
 
 import argparse
+import contextlib
+import signal
 import sys
 import time
 from pathlib import Path
@@ -115,17 +118,77 @@ def _trust_line(sol) -> str:
     return f"  trustworthy to 1e-2 rad until ~{until:.3g} s (largest Lyapunov exponent){note}"
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM during a checkpointed run: it stops as on Ctrl-C, leaving a final checkpoint."""
+
+
+@contextlib.contextmanager
+def _sigterm_stops():
+    """While a checkpointed run goes on, SIGTERM raises :class:`Terminated` (checked by the core
+    with Ctrl-C, ten times a second) instead of killing the process outright."""
+    def handler(signum, frame):
+        raise Terminated()
+
+    try:
+        old = signal.signal(signal.SIGTERM, handler)
+    except ValueError:  # not the main thread: leave signals alone
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
+def _stopped(path: Path, exc: BaseException) -> int:
+    """Report a checkpointed run stopped by a signal; the exit status says which."""
+    from .checkpoint import load_checkpoint
+
+    what = "terminated" if isinstance(exc, Terminated) else "interrupted"
+    try:
+        archive = load_checkpoint(path)
+    except Exception:
+        print(f"\n{PROG}: {what} before the first checkpoint; nothing written", file=sys.stderr)
+    else:
+        print(f"\n{PROG}: {what} at t = {archive.t:g} s of {archive.t_end:g} s; checkpoint {path} is "
+              f"complete; continue with: {PROG} resume {path}", file=sys.stderr)
+    return 143 if isinstance(exc, Terminated) else 130
+
+
 def _run_scenario(args, scenario, outdir: Path) -> int:
     """Simulate a checked scenario and write its outputs into ``outdir``."""
+    import multipendulum as mp
+
+    if getattr(args, "t_end", None) is not None:
+        scenario = scenario.replace(t_end=args.t_end)
+    path = getattr(args, "checkpoint", None)
+    if path is None:
+        if getattr(args, "checkpoint_every", None) is not None or getattr(args, "checkpoint_seconds", None) is not None:
+            raise mp.InputError("--checkpoint-every / --checkpoint-seconds need --checkpoint FILE")
+        with ProgressBar("simulate", quiet=args.quiet) as bar:
+            sol = scenario.run(progress=bar)
+        return _write_outputs(args, scenario, sol, outdir)
+    info = {"scenario": scenario.metadata(),
+            "cli": {"output": str(outdir), "format": args.format, "no_animation": args.no_animation,
+                    "no_plots": args.no_plots}}
+    try:
+        with ProgressBar("simulate", quiet=args.quiet) as bar, _sigterm_stops():
+            sol = mp.simulate(scenario.build_chain(), scenario.theta0, scenario.omega0, scenario.t_end,
+                              progress=bar, checkpoint=path, checkpoint_every=args.checkpoint_every,
+                              checkpoint_seconds=args.checkpoint_seconds, checkpoint_info=info,
+                              **scenario.simulate_kwargs())
+    except KeyboardInterrupt as exc:
+        return _stopped(path, exc)
+    return _write_outputs(args, scenario, sol, outdir)
+
+
+def _write_outputs(args, scenario, sol, outdir: Path) -> int:
+    """Print the run's summary and write its results, animation and plots into ``outdir``."""
     from .animation import animate, frame_times
     from .plotting import plot
     from .results import save_results
 
     outputs = scenario.outputs
-    if getattr(args, "t_end", None) is not None:
-        scenario = scenario.replace(t_end=args.t_end)
-    with ProgressBar("simulate", quiet=args.quiet) as bar:
-        sol = scenario.run(progress=bar)
     _say(args, *_summary(scenario, sol))
 
     results_name = outputs.results
@@ -173,6 +236,12 @@ def _add_run(sub, common) -> None:
     p.add_argument("-o", "--output", type=Path, metavar="DIR",
                    help="output directory (default: out/<scenario file name without .toml>)")
     _add_run_options(p)
+    p.add_argument("--checkpoint", type=Path, metavar="FILE",
+                   help="write the run's complete state to FILE now and then, and on Ctrl-C or SIGTERM; "
+                        "continue with `multipendulum resume FILE`")
+    p.add_argument("--checkpoint-every", type=int, metavar="K", help="a checkpoint every K steps")
+    p.add_argument("--checkpoint-seconds", type=float, metavar="S",
+                   help="a checkpoint every S seconds of wall time (default 60 when neither is given)")
     p.set_defaults(handler=_cmd_run)
 
 
@@ -182,6 +251,48 @@ def _cmd_run(args) -> int:
     scenario = load_scenario(args.scenario)
     outdir = args.output if args.output is not None else Path("out") / args.scenario.stem
     return _run_scenario(args, scenario, outdir)
+
+
+@command
+def _add_resume(sub, common) -> None:
+    p = sub.add_parser(
+        "resume", parents=[common], help="continue a run from its checkpoint archive",
+        description="Continue a `multipendulum run --checkpoint FILE` from FILE to its t_end, then print "
+                    "the summary and write the same outputs the run would have written (into its output "
+                    "directory unless -o says otherwise). The results are bit-for-bit those of an "
+                    "uninterrupted run. Checkpoints go on being written to FILE.",
+    )
+    p.add_argument("archive", type=Path, metavar="ARCHIVE", help="checkpoint archive written by run --checkpoint")
+    p.add_argument("-o", "--output", type=Path, metavar="DIR", help="output directory (default: the run's)")
+    p.add_argument("--format", choices=("npz", "csv"), help="results file format (default: the run's)")
+    p.add_argument("--no-animation", action="store_true", help="do not write the animation")
+    p.add_argument("--no-plots", action="store_true", help="do not write the plots")
+    p.set_defaults(handler=_cmd_resume)
+
+
+def _cmd_resume(args) -> int:
+    import multipendulum as mp
+    from .checkpoint import load_checkpoint, resume
+    from .results import scenario_from_metadata
+
+    archive = load_checkpoint(args.archive)
+    info = archive.info
+    if not info.get("scenario"):
+        raise mp.InputError(f"{str(args.archive)!r} was written by mp.simulate, not `multipendulum run`: "
+                            "continue it in Python with mp.resume(path)")
+    scenario = scenario_from_metadata(info["scenario"])
+    cli = info.get("cli") or {}
+    outdir = args.output if args.output is not None else Path(cli.get("output") or Path("out") / "resumed")
+    args.format = args.format or cli.get("format")
+    args.no_animation = args.no_animation or bool(cli.get("no_animation"))
+    args.no_plots = args.no_plots or bool(cli.get("no_plots"))
+    _say(args, f"resuming {args.archive} at t = {archive.t:g} s of {archive.t_end:g} s")
+    try:
+        with ProgressBar("simulate", quiet=args.quiet) as bar, _sigterm_stops():
+            sol = resume(archive, progress=bar)
+    except KeyboardInterrupt as exc:
+        return _stopped(args.archive, exc)
+    return _write_outputs(args, scenario, sol, outdir)
 
 
 @command

@@ -29,7 +29,7 @@ import numpy as np
 import multipendulum as _mp
 from multipendulum import InputError
 
-__all__ = ["Results", "save_results", "load_results", "atomic_path", "series", "FORMATS"]
+__all__ = ["Results", "save_results", "load_results", "atomic_path", "series", "scenario_from_metadata", "FORMATS"]
 
 PathLike = Union[str, "os.PathLike[str]"]
 FORMATS = ("npz", "csv")
@@ -94,16 +94,22 @@ class Results:
         info = self.metadata.get("scenario")
         if not info:
             return None
-        from .scenario import loads_scenario
-
-        scenario = loads_scenario(info["text"], files=info.get("files") or {}, path=info.get("path"))
-        overrides = info.get("overrides") or {}
-        return scenario.replace(**overrides) if overrides else scenario
+        return scenario_from_metadata(info)
 
     def __repr__(self) -> str:
         where = f" from {str(self.path)!r}" if self.path else ""
         return (f"<Results{where}: N = {self.n}, {self.t.shape[0]} samples, "
                 f"t = {self.t[0]:g}..{self.t[-1]:g} s, method {self.method!r}>")
+
+
+def scenario_from_metadata(info: Dict[str, Any]):
+    """The scenario described by ``Scenario.metadata()`` (as stored in results files and
+    checkpoint archives), with its overrides (e.g. ``--t-end``) applied."""
+    from .scenario import loads_scenario
+
+    scenario = loads_scenario(info["text"], files=info.get("files") or {}, path=info.get("path"))
+    overrides = info.get("overrides") or {}
+    return scenario.replace(**overrides) if overrides else scenario
 
 
 # ----------------------------------------------------------------------------------------------

@@ -569,7 +569,7 @@ fn event_spec(spec: &Bound<'_, PyTuple>, errors: &EventErrors) -> PyResult<core:
 /// Integrate B >= 1 initial states (rows of flat `theta0`, `omega0`). Built-in torques run on
 /// all cores with the GIL released; a Python torque function runs the rows in turn, holding it.
 #[pyfunction]
-#[pyo3(signature = (chain, theta0, omega0, t_end, method, form, dt, rtol, atol, adaptive, t_eval, max_steps, torque_spec, joint, progress, events=None))]
+#[pyo3(signature = (chain, theta0, omega0, t_end, method, form, dt, rtol, atol, adaptive, t_eval, max_steps, torque_spec, joint, progress, events=None, checkpoint=None, resume=None))]
 #[allow(clippy::too_many_arguments)]
 fn simulate<'py>(
     py: Python<'py>,
@@ -589,6 +589,8 @@ fn simulate<'py>(
     joint: bool,
     progress: Option<Py<PyAny>>,
     events: Option<Vec<Bound<'py, PyTuple>>>,
+    checkpoint: Option<(u64, Option<f64>, Py<PyAny>)>,
+    resume: Option<Bound<'py, pyo3::types::PyDict>>,
 ) -> PyResult<Bound<'py, pyo3::types::PyDict>> {
     let c = &chain.inner;
     let n = c.n();
@@ -616,7 +618,39 @@ fn simulate<'py>(
     let slot = RefCell::new(None);
     let src = torque(n, torque_spec.as_ref(), joint, &slot)?;
     let mut prog = Progress { every: Duration::from_millis(100), last: Instant::now(), t_end, callback: progress.as_ref() };
+    let resume = resume.as_ref().map(checkpoint_in).transpose()?;
+    if (checkpoint.is_some() || resume.is_some()) && (b > 1 || matches!(src, AnyTorque::Call(_) | AnyTorque::JointCall(_))) {
+        return Err(InputError::new_err(
+            "checkpoints need a single run with a built-in torque (not a batch, not a Python torque function)",
+        ));
+    }
+    let save_error: std::sync::Mutex<Option<PyErr>> = Default::default();
+    let mut last_save = Instant::now();
+    let (every_steps, every_seconds) = checkpoint.as_ref().map_or((0, None), |c| (c.0, c.1));
+    let mut due = || {
+        let due = every_seconds.is_some_and(|s| last_save.elapsed().as_secs_f64() >= s);
+        if due {
+            last_save = Instant::now();
+        }
+        due
+    };
+    let mut save = |cp: &core::Checkpoint| -> core::Result<()> {
+        let Some((_, _, cb)) = checkpoint.as_ref() else { return Ok(()) };
+        Python::attach(|py| checkpoint_out(py, cp).and_then(|d| cb.call1(py, (d,)).map(drop))).map_err(|e| {
+            *save_error.lock().unwrap_or_else(|p| p.into_inner()) = Some(e);
+            Error::Torque { t: cp.t }
+        })
+    };
+    let start = match &resume {
+        Some(cp) => core::Start::Resume(cp),
+        None => core::Start::Initial { theta0, omega0 },
+    };
     let fail = |e: Error| -> PyErr {
+        // A checkpoint that could not be written matters more than the interrupt that asked for it.
+        if let Some(p) = save_error.lock().unwrap_or_else(|p| p.into_inner()).take() {
+            PENDING.with(|p| p.borrow_mut().take());
+            return p;
+        }
         if let Some(p) = PENDING.with(|p| p.borrow_mut().take()) {
             return p;
         }
@@ -635,10 +669,16 @@ fn simulate<'py>(
             run(src).map(Trajectories)
         }
         AnyTorque::Builtin(s) => py
-            .detach(|| core::simulate(c, theta0, omega0, t_end, &settings, s, &mut |t| prog.tick(None, t)))
+            .detach(|| {
+                let mut cps = checkpoint.as_ref().map(|_| core::Checkpoints { every_steps, due: &mut due, save: &mut save });
+                core::simulate_from(c, start, t_end, &settings, s, &mut |t| prog.tick(None, t), cps.as_mut())
+            })
             .map(|t| Trajectories(vec![t])),
         AnyTorque::JointBuiltin(s) => py
-            .detach(|| core::simulate(c, theta0, omega0, t_end, &settings, s, &mut |t| prog.tick(None, t)))
+            .detach(|| {
+                let mut cps = checkpoint.as_ref().map(|_| core::Checkpoints { every_steps, due: &mut due, save: &mut save });
+                core::simulate_from(c, start, t_end, &settings, s, &mut |t| prog.tick(None, t), cps.as_mut())
+            })
             .map(|t| Trajectories(vec![t])),
         mut src => {
             let mut out = Vec::with_capacity(b);
@@ -658,6 +698,49 @@ fn simulate<'py>(
     };
     let trs = result.map_err(fail)?;
     trajectories_out(py, trs)
+}
+
+/// A checkpoint as a dict of numbers and flat arrays (the Python layer stores it).
+fn checkpoint_out<'py>(py: Python<'py>, cp: &core::Checkpoint) -> PyResult<Bound<'py, pyo3::types::PyDict>> {
+    let d = pyo3::types::PyDict::new(py);
+    d.set_item("t", cp.t)?;
+    d.set_item("y", vec_out(py, cp.y.clone()))?;
+    d.set_item("steps", cp.stats.steps)?;
+    d.set_item("rejected", cp.stats.rejected)?;
+    d.set_item("evaluations", cp.stats.evaluations)?;
+    d.set_item("iterations", cp.stats.iterations)?;
+    d.set_item("k", vec_out(py, cp.carry.k.clone()))?;
+    d.set_item("comp", vec_out(py, cp.carry.comp.clone()))?;
+    d.set_item("h", cp.carry.h)?;
+    d.set_item("slope", vec_out(py, cp.slope.clone()))?;
+    d.set_item("out_t", vec_out(py, cp.out_t.clone()))?;
+    d.set_item("out_y", vec_out(py, cp.out_y.clone()))?;
+    d.set_item("next_out", cp.next_out)?;
+    Ok(d)
+}
+
+/// The inverse of [`checkpoint_out`]; a missing or mistyped entry is named.
+fn checkpoint_in(d: &Bound<'_, pyo3::types::PyDict>) -> PyResult<core::Checkpoint> {
+    fn get<'py, T: for<'a> FromPyObject<'a, 'py>>(d: &Bound<'py, pyo3::types::PyDict>, key: &str) -> PyResult<T> {
+        let v = d.get_item(key)?.ok_or_else(|| InputError::new_err(format!("checkpoint: missing {key:?}")))?;
+        v.extract().map_err(|_| InputError::new_err(format!("checkpoint: {key:?} has the wrong type")))
+    }
+    Ok(core::Checkpoint {
+        t: get(d, "t")?,
+        y: get(d, "y")?,
+        stats: core::Stats {
+            steps: get(d, "steps")?,
+            rejected: get(d, "rejected")?,
+            evaluations: get(d, "evaluations")?,
+            iterations: get(d, "iterations")?,
+            energy_error: 0.0,
+        },
+        carry: core::Carry { k: get(d, "k")?, comp: get(d, "comp")?, h: get(d, "h")? },
+        slope: get(d, "slope")?,
+        out_t: get(d, "out_t")?,
+        out_y: get(d, "out_y")?,
+        next_out: get(d, "next_out")?,
+    })
 }
 
 /// A built-in generalized torque for the chaos kernels (which run without the GIL).
@@ -724,6 +807,13 @@ fn flip_energy_threshold(py: Python<'_>, chain: &PyChain, link: Option<usize>) -
     core::chaos::flip_energy_threshold(&chain.inner, link).map_err(|e| to_py(py, e))
 }
 
+/// Refuse a request needing `bytes` that would not fit in memory; see
+/// `multipendulum_core::memory::check` (the one place the limit lives).
+#[pyfunction]
+fn check_memory(py: Python<'_>, bytes: f64, what: &str, advice: &str) -> PyResult<()> {
+    core::memory::check(bytes, what, advice).map_err(|e| to_py(py, e))
+}
+
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyChain>()?;
@@ -731,6 +821,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(lyapunov, m)?)?;
     m.add_function(wrap_pyfunction!(first_flips, m)?)?;
     m.add_function(wrap_pyfunction!(flip_energy_threshold, m)?)?;
+    m.add_function(wrap_pyfunction!(check_memory, m)?)?;
     m.add("InputError", m.py().get_type::<InputError>())?;
     m.add("IntegrationError", m.py().get_type::<IntegrationError>())?;
     m.add("METHODS", Method::ALL.iter().map(|m| m.name()).collect::<Vec<_>>())?;

@@ -3,7 +3,7 @@
 //! against `atol + rtol |y|`; 12 evaluations per step (the last reused as the next step's first),
 //! 3 more for the 7th-order dense output used at `t_eval`. Not symplectic.
 use super::dop853_tableau::{A, B, C, D, E3, E5};
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::system::OdeSystem;
 
 const STAGES: usize = 12;
@@ -44,6 +44,24 @@ impl Dop853 {
     pub fn start<S: OdeSystem>(&mut self, sys: &mut S, t: f64, y: &[f64]) -> Result<()> {
         let d = self.dim;
         sys.rhs(t, y, &mut self.k[..d])
+    }
+
+    /// The slope at the current state that the next step starts from (for a checkpoint).
+    pub fn slope(&self) -> &[f64] {
+        &self.k[..self.dim]
+    }
+
+    /// Start from a saved [`Dop853::slope`] instead of evaluating it, as the run it came from did.
+    pub fn resume(&mut self, slope: &[f64]) -> Result<()> {
+        if slope.len() != self.dim {
+            return Err(Error::input(format!(
+                "the checkpoint's integrator state does not fit dop853: {} slopes expected, got {}",
+                self.dim,
+                slope.len()
+            )));
+        }
+        self.k[..self.dim].copy_from_slice(slope);
+        Ok(())
     }
 
     /// Hairer's initial step size guess (Solving ODEs I, II.4), after `start`.

@@ -6,7 +6,7 @@
 //! 5–15 iterations. The stage equations are iterated until the increments stop decreasing at
 //! round-off (Hairer, McLachlan & Razakarivony 2008), starting from the previous step's
 //! collocation polynomial; the update uses compensated summation so round-off does not drift.
-use super::FixedStep;
+use super::{Carry, FixedStep};
 use crate::error::{Error, Result};
 use crate::system::OdeSystem;
 
@@ -97,6 +97,30 @@ impl FixedStep for Gauss {
     }
     fn symplectic(&self) -> bool {
         true
+    }
+
+    fn iterations(&self) -> u64 {
+        self.iterations
+    }
+
+    fn carry(&self) -> Carry {
+        Carry { k: self.k.clone(), comp: self.comp.clone(), h: self.last_h }
+    }
+
+    fn restore(&mut self, carry: &Carry) -> Result<()> {
+        if carry.k.len() != self.k.len() || carry.comp.len() != self.comp.len() || carry.h.is_some_and(|h| !(h.is_finite() && h > 0.0)) {
+            return Err(Error::input(format!(
+                "the checkpoint's integrator state does not fit gauss{}: {} stage slopes and {} residuals \
+                 expected, got {} and {}",
+                2 * self.s,
+                self.k.len(),
+                self.comp.len(),
+                carry.k.len(),
+                carry.comp.len()
+            )));
+        }
+        self.set_state(&carry.k, &carry.comp, carry.h);
+        Ok(())
     }
 
     fn step<S: OdeSystem>(&mut self, sys: &mut S, t: f64, y: &mut [f64], h: f64) -> Result<()> {

@@ -20,6 +20,34 @@ pub trait FixedStep {
     fn symplectic(&self) -> bool;
     /// Advance `y` from `t` to `t + h` in place.
     fn step<S: OdeSystem>(&mut self, sys: &mut S, t: f64, y: &mut [f64], h: f64) -> Result<()>;
+    /// Fixed-point iterations so far (implicit methods).
+    fn iterations(&self) -> u64 {
+        0
+    }
+    /// What later steps depend on, for a checkpoint (nothing for a method without memory).
+    fn carry(&self) -> Carry {
+        Carry::default()
+    }
+    /// Continue from a [`FixedStep::carry`]; refuses one of another method or size.
+    fn restore(&mut self, carry: &Carry) -> Result<()> {
+        if carry == &Carry::default() {
+            Ok(())
+        } else {
+            Err(Error::input("the checkpoint's integrator state is not that of this method"))
+        }
+    }
+}
+
+/// An integrator's state carried from one step to the next, as plain numbers (checkpoints).
+/// dop853: `k` the slope at the current state (first-same-as-last), `h` the next step to try;
+/// gauss4/gauss6: `k` the stage slopes (stages x dim, the next step's starting guess), `comp`
+/// the compensated-summation residuals, `h` the last step (the guess is extrapolated only when
+/// the next step has exactly this size); rk4: nothing.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Carry {
+    pub k: Vec<f64>,
+    pub comp: Vec<f64>,
+    pub h: Option<f64>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
