@@ -89,7 +89,13 @@ impl<T: TorqueSource> OdeSystem for ChainSystem<'_, T> {
                 if active {
                     torque.eval(t, theta, second, tau)?;
                 }
-                d_theta.copy_from_slice(second);
+                if n == 2 {
+                    // Not a call to memcpy for two numbers.
+                    d_theta[0] = second[0];
+                    d_theta[1] = second[1];
+                } else {
+                    d_theta.copy_from_slice(second);
+                }
                 chain
                     .accelerations_into(theta, second, tau, d_second, ws)
                     .map_err(|s| singular(t, y, s))?;
