@@ -94,8 +94,17 @@ pub fn lyapunov(
     for j in 0..k {
         y[2 * n * (j + 1) + j] = 1.0; // unit vectors: an orthonormal start
     }
+    let steps = (t_end / dt).round().max(1.0);
+    check_steps(steps, "t_end / dt")?;
+    // The history keeps k running estimates per re-orthonormalisation.
+    let renorms = (steps / renorm_every as f64).ceil();
+    crate::memory::check(
+        renorms * (k + 1) as f64 * 8.0,
+        &format!("a history of {renorms:.0} re-orthonormalisations of {k} exponents"),
+        "use a larger renorm_every or dt, or a shorter t_end",
+    )?;
+    let steps = steps as u64;
     let mut rk = Rk4::new(d);
-    let steps = (t_end / dt).round().max(1.0) as u64;
     let mut sums = vec![0.0; k];
     let mut out = Lyapunov { exponents: vec![0.0; k], times: Vec::new(), history: Vec::new() };
     for step in 1..=steps {
@@ -148,8 +157,13 @@ pub fn flip_energy_threshold(chain: &Chain, link: Option<usize>) -> Result<f64> 
 
 /// For each initial state (rows of `theta0`, `omega0`), the first time at which `|theta_link|`
 /// reaches pi (`link = None`: any link), integrating with rk4 at step `dt` up to `t_max`; the
-/// crossing is located by bisection on the cubic Hermite interpolant of the step. Never: +inf.
-/// Runs in parallel; each result is independent of the number of threads.
+/// crossing is located by bisection on the cubic Hermite interpolant of the step. Never: +inf;
+/// a row that starts beyond pi: 0. Runs in parallel; each result is independent of the number
+/// of threads.
+///
+/// The undriven double pendulum goes through the SIMD kernel of [`crate::flipkernel`] (the same
+/// steps, with its own `sin`/`cos`, so it agrees with the per-trajectory path to round-off);
+/// everything else, or `MULTIPENDULUM_FLIP_KERNEL=scalar`, through [`first_flips_scalar`].
 pub fn first_flips(
     chain: &Chain,
     theta0: &[f64],
@@ -159,6 +173,17 @@ pub fn first_flips(
     link: Option<usize>,
     torque: &Builtin,
 ) -> Result<Vec<f64>> {
+    let steps = check_flips(chain, theta0, omega0, t_max, dt, link)?;
+    if chain.n() == 2 && matches!(torque, Builtin::None) {
+        if let Some(path) = crate::flipkernel::requested()? {
+            return crate::flipkernel::first_flips_double(chain, theta0, omega0, steps, dt, link, path);
+        }
+    }
+    first_flips_scalar(chain, theta0, omega0, t_max, dt, link, torque)
+}
+
+/// Validate a flip computation's input; the number of steps.
+fn check_flips(chain: &Chain, theta0: &[f64], omega0: &[f64], t_max: f64, dt: f64, link: Option<usize>) -> Result<u64> {
     let n = chain.n();
     if theta0.len() != omega0.len() || theta0.len() % n != 0 {
         return Err(Error::input(format!("theta0 and omega0 must both have shape (B, {n})")));
@@ -176,8 +201,38 @@ pub fn first_flips(
             return Err(Error::input(format!("link must be < N = {n}, got {k}")));
         }
     }
+    let steps = (t_max / dt).ceil();
+    check_steps(steps, "t_max / dt")?;
+    Ok(steps as u64)
+}
+
+/// The most rk4 steps per trajectory the chaos kernels take (about 10^3 s of one double
+/// pendulum): beyond it a request would look like a hang.
+pub const MAX_STEPS: f64 = 1e9;
+
+fn check_steps(steps: f64, what: &str) -> Result<()> {
+    if steps > MAX_STEPS {
+        return Err(Error::input(format!(
+            "{what} = {steps:.3e} steps per trajectory, more than {MAX_STEPS:.0e}; use a larger dt or a shorter time"
+        )));
+    }
+    Ok(())
+}
+
+/// [`first_flips`] one trajectory at a time with the generic [`Rk4`] over a
+/// [`ChainSystem`](crate::system::ChainSystem): any N, any built-in torque. Kept callable for comparisons with the kernel.
+pub fn first_flips_scalar(
+    chain: &Chain,
+    theta0: &[f64],
+    omega0: &[f64],
+    t_max: f64,
+    dt: f64,
+    link: Option<usize>,
+    torque: &Builtin,
+) -> Result<Vec<f64>> {
+    let n = chain.n();
+    let steps = check_flips(chain, theta0, omega0, t_max, dt, link)?;
     let links: Vec<usize> = link.map_or_else(|| (0..n).collect(), |k| vec![k]);
-    let steps = (t_max / dt).ceil() as u64;
     theta0
         .par_chunks(n)
         .zip(omega0.par_chunks(n))

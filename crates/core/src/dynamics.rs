@@ -14,7 +14,7 @@ use crate::model::Chain;
 use crate::trig::sin_cos;
 
 /// Pivots below this fraction of the diagonal mean the mass matrix is numerically singular.
-const PIVOT_TOL: f64 = 1e-14;
+pub(crate) const PIVOT_TOL: f64 = 1e-14;
 
 /// The mass matrix lost positive definiteness at link `.0` (a near-singular configuration).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

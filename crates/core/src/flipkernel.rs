@@ -1,0 +1,579 @@
+//! The flip-map kernel: first-flip times of many undriven double pendulums at once.
+//!
+//! Trajectories advance in lanes (structure of arrays: `theta1[LANES]`, `theta2[LANES]`, ...) with
+//! plain loops over fixed-size arrays that LLVM vectorises across trajectories. A lane whose
+//! trajectory has flipped (or reached `t_max`) is refilled at once with the next trajectory of its
+//! chunk, so no lane idles while work remains. The step is [`Rk4::step`](crate::integrators::Rk4)
+//! on the Lagrangian form, operation for operation, with the chain's own `diag`, `h`, `lengths`
+//! and `g` as in `Chain::accelerations_double`; only `sin`/`cos` differ: a vectorisable Cody–Waite
+//! reduction and the fdlibm kernels (within 1 ulp of glibc's), so states agree with the scalar
+//! path to round-off (not bit for bit) and flip times to the accuracy of the bisection.
+//!
+//! The same source is compiled several times (AVX-512, AVX2, portable) and chosen at run time.
+//! Every product-sum that is fused is written as an explicit `mul_add` (Rust never contracts
+//! `a * b + c` by itself): one correctly rounded operation, a hardware FMA on the AVX paths and
+//! glibc's exact `fma()` on the portable one, so every path gives the same bits; each lane is
+//! independent of the others, so a result does not depend on the chunking or the number of
+//! threads. (Fusing saved a fifth of the time against the unfused kernel.)
+#![allow(clippy::excessive_precision)] // fdlibm's constants, digit for digit
+
+use std::f64::consts::PI;
+
+use crate::dynamics::{Singular, PIVOT_TOL};
+use crate::error::{Error, Result};
+use crate::model::Chain;
+use crate::par::*;
+use crate::simulate::hermite;
+use crate::system::NON_FINITE;
+
+/// Trajectories advanced together: one AVX-512 register of f64, two AVX2 registers.
+const LANES: usize = 8;
+/// Trajectories per parallel task (each task refills its lanes from its own chunk).
+const CHUNK: usize = 512;
+type Lane = [f64; LANES];
+
+/// A compiled copy of the kernel.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Path {
+    /// Whatever the target's baseline allows (SSE2 on x86_64, simd128 or scalar on wasm32).
+    Portable,
+    /// x86_64 with AVX2 and FMA.
+    Avx2,
+    /// x86_64 with AVX-512F and FMA.
+    Avx512,
+}
+
+impl Path {
+    pub const ALL: [Path; 3] = [Path::Portable, Path::Avx2, Path::Avx512];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Path::Portable => "portable",
+            Path::Avx2 => "avx2",
+            Path::Avx512 => "avx512",
+        }
+    }
+
+    /// Whether this CPU can run the path.
+    pub fn available(self) -> bool {
+        match self {
+            Path::Portable => true,
+            #[cfg(target_arch = "x86_64")]
+            Path::Avx2 => std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma"),
+            #[cfg(target_arch = "x86_64")]
+            Path::Avx512 => std::arch::is_x86_feature_detected!("avx512f") && std::arch::is_x86_feature_detected!("fma"),
+            #[cfg(not(target_arch = "x86_64"))]
+            _ => false,
+        }
+    }
+
+    /// The widest path this CPU runs.
+    pub fn best() -> Path {
+        Path::ALL.into_iter().rev().find(|p| p.available()).unwrap_or(Path::Portable)
+    }
+}
+
+/// The environment variable that picks the flip-map route: `auto` (default), `scalar` (the
+/// per-trajectory rk4 of `chaos::first_flips_scalar`), or a kernel path by name. For tests and
+/// benchmarks; results never depend on it beyond round-off (and not at all among kernel paths).
+pub const SWITCH: &str = "MULTIPENDULUM_FLIP_KERNEL";
+
+/// The route the environment asks for: `None` for the scalar path.
+pub fn requested() -> Result<Option<Path>> {
+    let value = std::env::var(SWITCH).unwrap_or_default();
+    match value.as_str() {
+        "" | "auto" => Ok(Some(Path::best())),
+        "scalar" => Ok(None),
+        name => match Path::ALL.into_iter().find(|p| p.name() == name) {
+            Some(p) if p.available() => Ok(Some(p)),
+            Some(p) => Err(Error::input(format!("{SWITCH} = {} is not supported by this CPU", p.name()))),
+            None => Err(Error::input(format!(
+                "{SWITCH} must be one of auto, scalar, portable, avx2, avx512, got {name:?}"
+            ))),
+        },
+    }
+}
+
+/// The double pendulum's constant coefficients, as `Chain::accelerations_double` uses them.
+#[derive(Debug, Clone, Copy)]
+struct Coef {
+    gh1: f64,
+    gh2: f64,
+    k: f64,
+    d1: f64,
+    d2: f64,
+    d1d2: f64,
+    tol: f64,
+}
+
+impl Coef {
+    fn new(chain: &Chain) -> Self {
+        let (d1, d2, h1, h2, g) = (chain.diag[0], chain.diag[1], chain.h[0], chain.h[1], chain.g);
+        // The same products, in the same order, as the scalar expressions they replace.
+        Coef { gh1: g * h1, gh2: g * h2, k: chain.lengths[0] * h2, d1, d2, d1d2: d1 * d2, tol: PIVOT_TOL * d1 * d2 }
+    }
+}
+
+// The constants are fdlibm's, digit for digit.
+// Cody–Waite reduction by pi/2 in three parts (fdlibm's __ieee754_rem_pio2, medium case with its
+// second iteration): pi/2 = P1 + P2 + P2T, with P1 and P2 of 33 bits so that `n * P1` and
+// `n * P2` are exact while |n| < 2^20.
+const TWO_OVER_PI: f64 = std::f64::consts::FRAC_2_PI;
+const P1: f64 = 1.57079632673412561417e+00;
+const P2: f64 = 6.07710050630396597660e-11;
+const P2T: f64 = 2.02226624879595063154e-21;
+/// Adding 1.5 * 2^52 rounds to the nearest integer (ties to even) and leaves it in the low bits.
+const ROUND: f64 = 6755399441055744.0;
+/// Beyond this |x| the lane falls back to `crate::trig::sin_cos` (|n| stays far below 2^20).
+const REDUCE_LIMIT: f64 = 1.0e5;
+
+// fdlibm's k_sin.c / k_cos.c minimax polynomials on [-pi/4, pi/4].
+const S1: f64 = -1.66666666666666324348e-01;
+const S2: f64 = 8.33333333332248946124e-03;
+const S3: f64 = -1.98412698298579493134e-04;
+const S4: f64 = 2.75573137070700676789e-06;
+const S5: f64 = -2.50507602534068634195e-08;
+const S6: f64 = 1.58969099521155010221e-10;
+const C1: f64 = 4.16666666666666019037e-02;
+const C2: f64 = -1.38888888888741095749e-03;
+const C3: f64 = 2.48015872894767294178e-05;
+const C4: f64 = -2.75573143513906633035e-07;
+const C5: f64 = 2.08757232129817482790e-09;
+const C6: f64 = -1.13596475577881948265e-11;
+
+/// `(sin x, cos x)` for |x| <= REDUCE_LIMIT, branch-free so that a loop over lanes vectorises.
+#[inline(always)]
+fn sin_cos_reduced(x: f64) -> (f64, f64) {
+    let kd = x.mul_add(TWO_OVER_PI, ROUND);
+    let q = kd.to_bits();
+    let n = kd - ROUND;
+    let r = (-n).mul_add(P1, x);
+    let w = n * P2;
+    let t = r;
+    let r = t - w;
+    let w = n * P2T - ((t - r) - w);
+    let y0 = r - w;
+    let y1 = (r - y0) - w;
+    // The kernels on y0 + y1 in [-pi/4, pi/4] (FreeBSD's __kernel_sin / __kernel_cos).
+    let z = y0 * y0;
+    let zz = z * z;
+    let rs = (z * zz).mul_add(z.mul_add(S6, S5), z.mul_add(z.mul_add(S4, S3), S2));
+    let v = z * y0;
+    let ks = y0 - (-v).mul_add(S1, z.mul_add((-v).mul_add(rs, 0.5 * y1), -y1));
+    let rc = (zz * zz).mul_add(z.mul_add(z.mul_add(C6, C5), C4), z * z.mul_add(z.mul_add(C3, C2), C1));
+    let hz = 0.5 * z;
+    let wc = 1.0 - hz;
+    let kc = wc + (((1.0 - wc) - hz) + z.mul_add(rc, -(y0 * y1)));
+    // Quadrant n mod 4: sin = (ks, kc, -ks, -kc), cos = (kc, -ks, -kc, ks).
+    let odd = q & 1 != 0;
+    let (a, b) = if odd { (kc, ks) } else { (ks, kc) };
+    let sin = f64::from_bits(a.to_bits() ^ ((q & 2) << 62));
+    let cos = f64::from_bits(b.to_bits() ^ (((q + 1) & 2) << 62));
+    (sin, cos)
+}
+
+/// `sin` and `cos` of every lane; lanes outside the reduction's range (or not finite) take
+/// the scalar route.
+#[inline(always)]
+fn sin_cos(x: &Lane) -> (Lane, Lane) {
+    let (mut s, mut c) = ([0.0; LANES], [0.0; LANES]);
+    for i in 0..LANES {
+        (s[i], c[i]) = sin_cos_reduced(x[i]);
+    }
+    let mut outside = false;
+    for v in x {
+        outside |= !(v.abs() <= REDUCE_LIMIT);
+    }
+    if outside {
+        for i in 0..LANES {
+            if !(x[i].abs() <= REDUCE_LIMIT) {
+                (s[i], c[i]) = crate::trig::sin_cos(x[i]);
+            }
+        }
+    }
+    (s, c)
+}
+
+/// `theta_ddot` of every lane, as `Chain::accelerations_double` with no torque; `det` receives
+/// the 2x2 determinant for the pivot test.
+#[inline(always)]
+fn accelerations(c: &Coef, y: &[Lane; 4], a1: &mut Lane, a2: &mut Lane, det: &mut Lane) {
+    let [th1, th2, w1, w2] = y;
+    let (s1, c1) = sin_cos(th1);
+    let (s2, c2) = sin_cos(th2);
+    for i in 0..LANES {
+        let (s12, c12) = (s1[i].mul_add(c2[i], -(c1[i] * s2[i])), c1[i].mul_add(c2[i], s1[i] * s2[i]));
+        let r1 = (-c.gh1).mul_add(s1[i], -(c.k * s12 * w2[i] * w2[i]));
+        let r2 = (-c.gh2).mul_add(s2[i], c.k * s12 * w1[i] * w1[i]);
+        let kc = c.k * c12;
+        let d = (-kc).mul_add(kc, c.d1d2);
+        let inv = 1.0 / d;
+        a1[i] = c.d2.mul_add(r1, -(kc * r2)) * inv;
+        a2[i] = c.d1.mul_add(r2, -(kc * r1)) * inv;
+        det[i] = d;
+    }
+}
+
+/// Whether an active lane failed the pivot test.
+#[inline(always)]
+fn any_singular(c: &Coef, det: &Lane, active: &[bool; LANES]) -> bool {
+    let mut bad = false;
+    for i in 0..LANES {
+        bad |= active[i] & !(det[i] > c.tol);
+    }
+    bad
+}
+
+/// One rk4 step of every lane, operation for operation as `Rk4::step`. `Err(stage)` (0..4) when
+/// an active lane's mass matrix failed the pivot test at that stage; `det` then holds its values.
+#[inline(always)]
+fn rk4_step(c: &Coef, y: &mut [Lane; 4], dt: f64, active: &[bool; LANES], det: &mut Lane) -> std::result::Result<(), usize> {
+    let half = 0.5 * dt;
+    let mut k = [[[0.0; LANES]; 4]; 4];
+    let mut tmp = *y;
+    for stage in 0..4 {
+        let [_, _, a1, a2] = &mut k[stage];
+        accelerations(c, &tmp, a1, a2, det);
+        k[stage][0] = tmp[2];
+        k[stage][1] = tmp[3];
+        if any_singular(c, det, active) {
+            return Err(stage);
+        }
+        if stage < 3 {
+            let h = if stage < 2 { half } else { dt };
+            for m in 0..4 {
+                for i in 0..LANES {
+                    tmp[m][i] = h.mul_add(k[stage][m][i], y[m][i]);
+                }
+            }
+        }
+    }
+    let sixth = dt / 6.0;
+    for m in 0..4 {
+        for i in 0..LANES {
+            y[m][i] = sixth.mul_add(2.0f64.mul_add(k[1][m][i] + k[2][m][i], k[0][m][i]) + k[3][m][i], y[m][i]);
+        }
+    }
+    Ok(())
+}
+
+/// The lanes of one chunk and the next row of the chunk to load.
+struct Lanes {
+    y: [Lane; 4],
+    step: [u64; LANES],
+    id: [usize; LANES],
+    active: [bool; LANES],
+    next: usize,
+}
+
+impl Lanes {
+    /// Put the next row that has not already flipped (`out = 0` for those) into `lane`; when none
+    /// is left the lane goes idle at rest, where it stays finite.
+    #[inline(always)]
+    fn load(&mut self, lane: usize, theta0: &[f64], omega0: &[f64], watch: [bool; 2], out: &mut [f64]) {
+        while self.next < out.len() {
+            let j = self.next;
+            self.next += 1;
+            let (th, om) = (&theta0[2 * j..2 * j + 2], &omega0[2 * j..2 * j + 2]);
+            if (watch[0] && th[0].abs() >= PI) || (watch[1] && th[1].abs() >= PI) {
+                out[j] = 0.0;
+                continue;
+            }
+            (self.y[0][lane], self.y[1][lane], self.y[2][lane], self.y[3][lane]) = (th[0], th[1], om[0], om[1]);
+            (self.step[lane], self.id[lane], self.active[lane]) = (0, j, true);
+            return;
+        }
+        for m in self.y.iter_mut() {
+            m[lane] = 0.0;
+        }
+        self.active[lane] = false;
+    }
+}
+
+/// The run of one chunk: `out[j]` for the rows `theta0[2j..2j+2]`, `omega0[2j..2j+2]`.
+/// `watch[k]`: whether link `k` counts as a flip.
+#[inline(always)]
+fn run_chunk(c: &Coef, theta0: &[f64], omega0: &[f64], steps: u64, dt: f64, watch: [bool; 2], out: &mut [f64]) -> Result<()> {
+    let mut lanes = Lanes { y: [[0.0; LANES]; 4], step: [0; LANES], id: [0; LANES], active: [false; LANES], next: 0 };
+    let mut det = [0.0; LANES];
+    let mut live = 0;
+    for lane in 0..LANES {
+        lanes.load(lane, theta0, omega0, watch, out);
+        live += usize::from(lanes.active[lane]);
+    }
+    while live > 0 {
+        let y0 = lanes.y;
+        if let Err(stage) = rk4_step(c, &mut lanes.y, dt, &lanes.active, &mut det) {
+            let i = (0..LANES).find(|&i| lanes.active[i] && !(det[i] > c.tol)).unwrap_or(0);
+            let t = lanes.step[i] as f64 * dt;
+            let t = [t, t + 0.5 * dt, t + 0.5 * dt, t + dt][stage];
+            let reason = if det[i].is_nan() { NON_FINITE.to_string() } else { Singular(0).reason() };
+            return Err(Error::integration(t, reason));
+        }
+        let mut event = false;
+        for i in 0..LANES {
+            lanes.step[i] += 1;
+            let flip = (watch[0] & (lanes.y[0][i].abs() >= PI)) | (watch[1] & (lanes.y[1][i].abs() >= PI));
+            event |= lanes.active[i] & (flip | (lanes.step[i] >= steps));
+        }
+        if !event {
+            continue;
+        }
+        for i in 0..LANES {
+            if !lanes.active[i] {
+                continue;
+            }
+            let t = (lanes.step[i] - 1) as f64 * dt;
+            let k = if watch[0] && lanes.y[0][i].abs() >= PI { 0 } else { 1 };
+            if watch[k] && lanes.y[k][i].abs() >= PI {
+                // Locate |theta_k| = pi on the step's cubic Hermite interpolant (theta' = omega).
+                let target = PI.copysign(lanes.y[k][i]);
+                let theta_at = |x: f64| {
+                    let mut at = [0.0];
+                    hermite(&[y0[k][i]], &[y0[2 + k][i]], &[lanes.y[k][i]], &[lanes.y[2 + k][i]], dt, x, &mut at);
+                    at[0]
+                };
+                let (mut lo, mut hi) = (0.0f64, 1.0f64);
+                for _ in 0..60 {
+                    let mid = 0.5 * (lo + hi);
+                    if (theta_at(mid) - target) * target.signum() >= 0.0 {
+                        hi = mid;
+                    } else {
+                        lo = mid;
+                    }
+                }
+                out[lanes.id[i]] = (t + hi * dt).min(t + dt);
+            } else if lanes.step[i] >= steps {
+                if !(0..4).all(|m| lanes.y[m][i].is_finite()) {
+                    return Err(Error::integration(t + dt, NON_FINITE));
+                }
+                out[lanes.id[i]] = f64::INFINITY;
+            } else {
+                continue;
+            }
+            lanes.load(i, theta0, omega0, watch, out);
+            live -= usize::from(!lanes.active[i]);
+        }
+    }
+    Ok(())
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,fma")]
+unsafe fn run_chunk_avx512(c: &Coef, th: &[f64], om: &[f64], steps: u64, dt: f64, watch: [bool; 2], out: &mut [f64]) -> Result<()> {
+    run_chunk(c, th, om, steps, dt, watch, out)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn run_chunk_avx2(c: &Coef, th: &[f64], om: &[f64], steps: u64, dt: f64, watch: [bool; 2], out: &mut [f64]) -> Result<()> {
+    run_chunk(c, th, om, steps, dt, watch, out)
+}
+
+fn run_chunk_on(path: Path, c: &Coef, th: &[f64], om: &[f64], steps: u64, dt: f64, watch: [bool; 2], out: &mut [f64]) -> Result<()> {
+    assert!(path.available(), "the {} kernel needs a CPU feature this one lacks", path.name());
+    match path {
+        // SAFETY: the CPU has the feature (checked just above).
+        #[cfg(target_arch = "x86_64")]
+        Path::Avx512 => unsafe { run_chunk_avx512(c, th, om, steps, dt, watch, out) },
+        #[cfg(target_arch = "x86_64")]
+        Path::Avx2 => unsafe { run_chunk_avx2(c, th, om, steps, dt, watch, out) },
+        _ => run_chunk(c, th, om, steps, dt, watch, out),
+    }
+}
+
+/// First-flip times of the undriven double pendulum `chain` (N = 2) for the rows of `theta0`,
+/// `omega0` (flat, `(B, 2)`), with `steps` rk4 steps of `dt` (`t = step * dt`) and the same rules
+/// as `chaos::first_flips`, which validates the input and calls this. `link`: `None` for either.
+pub(crate) fn first_flips_double(
+    chain: &Chain,
+    theta0: &[f64],
+    omega0: &[f64],
+    steps: u64,
+    dt: f64,
+    link: Option<usize>,
+    path: Path,
+) -> Result<Vec<f64>> {
+    debug_assert_eq!(chain.n(), 2);
+    let c = Coef::new(chain);
+    let watch = [link != Some(1), link != Some(0)];
+    let parts: Vec<Vec<f64>> = theta0
+        .par_chunks(2 * CHUNK)
+        .zip(omega0.par_chunks(2 * CHUNK))
+        .map(|(th, om)| {
+            let mut out = vec![0.0; th.len() / 2];
+            run_chunk_on(path, &c, th, om, steps, dt, watch, &mut out)?;
+            Ok(out)
+        })
+        .collect::<Result<_>>()?;
+    Ok(parts.concat())
+}
+
+/// The states of every row after `steps` rk4 steps of `dt`, flipped or not (for the tests).
+#[cfg(test)]
+fn advance(chain: &Chain, theta0: &[f64], omega0: &[f64], steps: u64, dt: f64, path: Path) -> Vec<[f64; 4]> {
+    let c = Coef::new(chain);
+    let mut out = Vec::new();
+    for (th, om) in theta0.chunks(2 * LANES).zip(omega0.chunks(2 * LANES)) {
+        let mut y = [[0.0; LANES]; 4];
+        for j in 0..th.len() / 2 {
+            (y[0][j], y[1][j], y[2][j], y[3][j]) = (th[2 * j], th[2 * j + 1], om[2 * j], om[2 * j + 1]);
+        }
+        let active = [false; LANES];
+        let mut det = [0.0; LANES];
+        let mut go = |y: &mut [Lane; 4]| {
+            let _ = rk4_step(&c, y, dt, &active, &mut det);
+        };
+        for _ in 0..steps {
+            match path {
+                // SAFETY: the tests only ask for available paths.
+                #[cfg(target_arch = "x86_64")]
+                Path::Avx512 => unsafe { avx512_call(&mut go, &mut y) },
+                _ => go(&mut y),
+            }
+        }
+        out.extend((0..th.len() / 2).map(|j| [y[0][j], y[1][j], y[2][j], y[3][j]]));
+    }
+    out
+}
+
+#[cfg(all(test, target_arch = "x86_64"))]
+#[target_feature(enable = "avx512f,fma")]
+unsafe fn avx512_call(f: &mut impl FnMut(&mut [Lane; 4]), y: &mut [Lane; 4]) {
+    f(y)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::chaos::first_flips_scalar;
+    use crate::integrators::{FixedStep, Rk4};
+    use crate::system::{ChainSystem, Form};
+    use crate::torque::Builtin;
+
+    fn ulps(a: f64, b: f64) -> u64 {
+        let key = |x: f64| {
+            let i = x.to_bits() as i64;
+            if i < 0 { i64::MIN - i } else { i }
+        };
+        key(a).abs_diff(key(b))
+    }
+
+    #[test]
+    fn sin_cos_is_within_one_ulp_of_glibc_and_falls_back_far_out() {
+        let mut worst = 0;
+        let mut xs: Vec<f64> = (0..200_001).map(|i| (i as f64 - 100_000.0) * 1.37e-4).collect();
+        xs.extend((0..20_000).map(|i| (i as f64 - 10_000.0) * 9.3)); // |x| up to 9.3e4
+        xs.extend([0.0, -0.0, 1e-300, 5e-324, PI, -PI, 0.5 * PI, 1e5, 1.5e5, 1e300, -3e22]);
+        for chunk in xs.chunks(LANES) {
+            let mut x = [0.0; LANES];
+            x[..chunk.len()].copy_from_slice(chunk);
+            let (s, c) = sin_cos(&x);
+            for i in 0..chunk.len() {
+                let (es, ec) = crate::trig::sin_cos(x[i]);
+                worst = worst.max(ulps(s[i], es)).max(ulps(c[i], ec));
+            }
+        }
+        assert!(worst <= 1, "worst error {worst} ulp");
+        let (s, c) = sin_cos(&[f64::NAN, f64::INFINITY, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+        assert!(s[0].is_nan() && c[0].is_nan() && s[1].is_nan() && c[1].is_nan());
+    }
+
+    fn chains() -> Vec<Chain> {
+        vec![
+            Chain::new(&[1.0, 1.0], &[1.0, 1.0], None, None, 9.81).unwrap(),
+            Chain::rods(&[1.0, 0.7], &[1.0, 2.0], 9.81).unwrap(),
+            Chain::new(&[1.0, 0.7], &[1.0, 2.0], Some(&[0.6, 0.3]), Some(&[0.05, 0.1]), 3.7).unwrap(),
+        ]
+    }
+
+    fn inputs(b: usize, seed: u64) -> (Vec<f64>, Vec<f64>) {
+        // A small LCG: reproducible without a dependency.
+        let mut s = seed;
+        let mut u = || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (s >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let th = (0..2 * b).map(|_| 6.0 * u() - 3.0).collect();
+        let om = (0..2 * b).map(|_| 4.0 * u() - 2.0).collect();
+        (th, om)
+    }
+
+    #[test]
+    fn lanes_follow_the_scalar_rk4_to_round_off() {
+        let (steps, dt) = (300, 0.01);
+        for chain in chains() {
+            // Mild motion, so that round-off is not amplified by chaos over the run.
+            let (th, om) = inputs(21, 5);
+            let (th, om): (Vec<f64>, Vec<f64>) = (th.iter().map(|x| 0.3 * x).collect(), om.iter().map(|x| 0.3 * x).collect());
+            let lanes = advance(&chain, &th, &om, steps, dt, Path::Portable);
+            let mut sys = ChainSystem::new(&chain, Builtin::None, Form::Lagrangian);
+            let mut rk = Rk4::new(4);
+            for (j, got) in lanes.iter().enumerate() {
+                let mut y = [th[2 * j], th[2 * j + 1], om[2 * j], om[2 * j + 1]];
+                for s in 0..steps {
+                    rk.step(&mut sys, s as f64 * dt, &mut y, dt).unwrap();
+                }
+                for m in 0..4 {
+                    assert!((got[m] - y[m]).abs() < 1e-12, "row {j}, entry {m}: {} vs {}", got[m], y[m]);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn every_path_gives_the_same_bits() {
+        let (th, om) = inputs(100, 9);
+        for chain in chains() {
+            let reference = first_flips_double(&chain, &th, &om, 800, 0.01, None, Path::Portable).unwrap();
+            let states = advance(&chain, &th, &om, 500, 0.01, Path::Portable);
+            for path in Path::ALL.into_iter().filter(|p| p.available() && *p != Path::Portable) {
+                let got = first_flips_double(&chain, &th, &om, 800, 0.01, None, path).unwrap();
+                assert!(got.iter().zip(&reference).all(|(a, b)| a.to_bits() == b.to_bits()), "{path:?}");
+                if path == Path::Avx512 {
+                    let s = advance(&chain, &th, &om, 500, 0.01, path);
+                    assert!(s.iter().flatten().zip(states.iter().flatten()).all(|(a, b)| a.to_bits() == b.to_bits()));
+                }
+            }
+            assert!(reference.iter().any(|t| t.is_finite()) && reference.iter().any(|t| t.is_infinite()));
+        }
+    }
+
+    #[test]
+    fn flip_times_match_the_scalar_path_where_the_motion_is_regular() {
+        for chain in chains() {
+            for link in [None, Some(0), Some(1)] {
+                // Released from rest over a grid; a flip soon after release is regular motion.
+                let (mut th, mut om) = (Vec::new(), Vec::new());
+                for i in 0..41 {
+                    for j in 0..41 {
+                        th.extend([-PI + 2.0 * PI * i as f64 / 40.0, -PI + 2.0 * PI * j as f64 / 40.0]);
+                        om.extend([0.0, 0.0]);
+                    }
+                }
+                let steps = 400;
+                let fast = first_flips_double(&chain, &th, &om, steps, 0.01, link, Path::best()).unwrap();
+                let slow = first_flips_scalar(&chain, &th, &om, 4.0, 0.01, link, &Builtin::None).unwrap();
+                let same = fast.iter().zip(&slow).filter(|(a, b)| a.is_finite() == b.is_finite()).count();
+                assert!(same as f64 >= 0.99 * fast.len() as f64, "{same} of {}", fast.len());
+                let early: Vec<_> = fast.iter().zip(&slow).filter(|(a, b)| **a < 2.0 && **b < 2.0).collect();
+                assert!(early.len() > 50, "{}", early.len());
+                for (a, b) in early {
+                    assert!((a - b).abs() < 1e-9, "{a} vs {b}");
+                }
+                // The rows starting beyond pi (the grid's edges) flip at 0 on both paths.
+                assert_eq!(fast[0], 0.0);
+                assert_eq!(slow[0], 0.0);
+            }
+        }
+    }
+
+    #[test]
+    fn a_blow_up_is_an_integration_error_not_a_silent_value() {
+        let chain = Chain::new(&[1.0, 1.0], &[1.0, 1.0], None, None, 9.81).unwrap();
+        let e = first_flips_double(&chain, &[0.1, 0.1, 0.2, 0.2], &[0.0, 0.0, 1e200, 0.0], 100, 0.01, None, Path::best())
+            .unwrap_err();
+        assert!(matches!(e, Error::Integration { .. }), "{e}");
+        assert!(e.to_string().contains("non-finite"), "{e}");
+    }
+}
