@@ -1,6 +1,9 @@
 """Engine benchmarks: multipendulum against peers measured in the same run.
 
-Run:  /work/main/.venv/bin/python bench/bench_engine.py [--quick]
+A part of the benchmark harness: bench/bench.py (``make bench``) imports its helpers (timing in
+alternation, medians, machine information, verdicts, the C peer) and its three workloads below,
+and puts their sections into bench/RESULTS.md. Run alone it writes bench/build/RESULTS-engine.md:
+    bench/.venv/bin/python bench/bench_engine.py [--quick]
 
 Three comparisons, each reported as a ratio against a peer timed on this machine in this run
 (never as a timed assertion in a test):
@@ -16,7 +19,7 @@ Three comparisons, each reported as a ratio against a peer timed on this machine
    side against ``mp.simulate(method="dop853")`` at equal final error, found by scanning the
    tolerance of each and interpolating time against error on log-log axes.
 
-Every time is the median of at least 5 repeats. Writes bench/RESULTS-engine.md and prints it.
+Every time is the median of at least 5 repeats.
 """
 
 from __future__ import annotations
@@ -40,7 +43,7 @@ BENCH = Path(__file__).resolve().parent
 C_SOURCE = BENCH / "c" / "double_pendulum.c"
 BUILD = BENCH / "build"
 C_EXE = BUILD / "double_pendulum"
-RESULTS = BENCH / "RESULTS-engine.md"
+RESULTS = BUILD / "RESULTS-engine.md"
 C_FLAGS = ["-O3", "-std=c99"]
 
 # The double pendulum every comparison uses: two unit point masses on unit rods.
@@ -184,9 +187,10 @@ def run_c(steps, dt, repeats):
 
 
 def bench_rk4(mp, quick, repeats):
-    # dt a power of two, so t_end = steps * dt is exact and both sides take exactly `steps`.
+    # dt a power of two, so t_end = steps * dt = 100 s is exact and both sides take exactly
+    # `steps` steps.
     dt = 2.0**-12
-    steps = 2**18 if quick else 2**20
+    steps = 100 * 2**12
     t_end = steps * dt
     res = {"dt": dt, "steps": steps, "t_end": t_end}
 
