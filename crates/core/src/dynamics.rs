@@ -13,6 +13,9 @@
 use crate::model::Chain;
 use crate::trig::sin_cos;
 
+/// Chains from this many links take their `sin`/`cos` eight at a time (`Chain::trig`).
+const TRIG_VECTOR_MIN: usize = 8;
+
 /// Pivots below this fraction of the diagonal mean the mass matrix is numerically singular.
 pub(crate) const PIVOT_TOL: f64 = 1e-14;
 
@@ -45,6 +48,10 @@ impl Chain {
     #[inline(always)]
     fn trig(&self, theta: &[f64], ws: &mut Workspace) {
         let n = theta.len();
+        // Long chains: eight angles at a time where the CPU has AVX2 + FMA (within 1 ulp of glibc).
+        if n >= TRIG_VECTOR_MIN && crate::flipkernel::sin_cos_slice(theta, &mut ws.sin[..n], &mut ws.cos[..n]) {
+            return;
+        }
         for ((t, s), c) in theta.iter().zip(&mut ws.sin[..n]).zip(&mut ws.cos[..n]) {
             (*s, *c) = sin_cos(*t);
         }
