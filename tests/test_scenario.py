@@ -199,6 +199,17 @@ def test_table_csv_problems(tmp_path):
         assert fragment in str(info.value), (csv, str(info.value))
 
 
+def test_endless_or_huge_files_are_refused_not_read_for_ever(tmp_path):
+    base = GOOD + '[torque]\nkind = "table"\nconvention = "generalized"\nfile = "/dev/zero"\n'
+    with pytest.raises(ScenarioError, match=r"key 'torque.file'.*larger than 64 MiB"):
+        loads_scenario(base, base_dir=tmp_path)
+    with pytest.raises(ScenarioError, match="cannot read scenario file: larger than 64 MiB"):
+        load_scenario("/dev/zero")
+    (tmp_path / "latin1.csv").write_bytes(b"0,1,2,3\n1,\xe9,2,3\n")
+    with pytest.raises(ScenarioError, match="is not UTF-8 text"):
+        loads_scenario(base.replace("/dev/zero", "latin1.csv"), base_dir=tmp_path)
+
+
 def test_unreadable_files_and_bad_toml(tmp_path):
     with pytest.raises(ScenarioError, match="cannot read scenario file") as info:
         load_scenario(tmp_path / "missing.toml")

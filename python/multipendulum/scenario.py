@@ -253,12 +253,25 @@ def default_scenario_path() -> Path:
     return Path(__file__).resolve().parent / "data" / "default.toml"
 
 
+MAX_FILE_BYTES = 64 * 1024 * 1024
+
+
+def _read_limited(path: Path) -> bytes:
+    """A scenario or table file's bytes; one larger than MAX_FILE_BYTES (or endless, like
+    /dev/zero) is an OSError rather than a hang or a full memory."""
+    with open(path, "rb") as f:
+        data = f.read(MAX_FILE_BYTES + 1)
+    if len(data) > MAX_FILE_BYTES:
+        raise OSError(f"larger than {MAX_FILE_BYTES // 2**20} MiB, which is more than any scenario or table needs")
+    return data
+
+
 def load_scenario(path: PathLike) -> Scenario:
     """Read and check a scenario file. Relative file names inside it (a torque table) are
     resolved against the scenario's own directory."""
     path = Path(path)
     try:
-        data = path.read_bytes()
+        data = _read_limited(path)
     except OSError as exc:
         raise ScenarioError(f"cannot read scenario file: {exc.strerror or exc}", path=path) from exc
     try:
@@ -451,9 +464,11 @@ class _Reader:
                 raise self.error(key, f"cannot read {name!r}: the scenario has no directory to look in")
             target = Path(name) if Path(name).is_absolute() else self.base_dir / name
             try:
-                text = target.read_text(encoding="utf-8")
+                text = _read_limited(target).decode("utf-8")
             except OSError as exc:
                 raise self.error(key, f"cannot read {str(target)!r}: {exc.strerror or exc}") from exc
+            except UnicodeDecodeError as exc:
+                raise self.error(key, f"{str(target)!r} is not UTF-8 text: {exc}") from exc
         self.used_files[name] = text
         return text
 
