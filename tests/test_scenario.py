@@ -210,6 +210,17 @@ def test_endless_or_huge_files_are_refused_not_read_for_ever(tmp_path):
         loads_scenario(base.replace("/dev/zero", "latin1.csv"), base_dir=tmp_path)
 
 
+def test_the_parsers_own_limits_are_scenario_errors():
+    # Found by the fuzz target: a 53-digit chain.n overflowed list sizes; the parser itself
+    # refuses integers of over 4300 digits and deep nesting with raw exceptions.
+    with pytest.raises(ScenarioError, match=r"key 'chain\.n': must be from 1 to 1000000, got 6{53}"):
+        loads_scenario("[chain]\nn = " + "6" * 53 + "\nlengths = 0.02\nmasses = 1.0\n")
+    with pytest.raises(ScenarioError, match="not a usable TOML file: Exceeds the limit"):
+        loads_scenario("[chain]\nn = " + "9" * 5000 + "\n")
+    with pytest.raises(ScenarioError, match="nested too deeply"):
+        loads_scenario("a = " + "[" * 100_000 + "]" * 100_000)
+
+
 def test_unreadable_files_and_bad_toml(tmp_path):
     with pytest.raises(ScenarioError, match="cannot read scenario file") as info:
         load_scenario(tmp_path / "missing.toml")

@@ -254,6 +254,9 @@ def default_scenario_path() -> Path:
 
 
 MAX_FILE_BYTES = 64 * 1024 * 1024
+#: The most links a scenario may ask for with a single number broadcast to every link (a
+#: million links is 0.1 s per rk4 step; more is a typo, not a simulation).
+MAX_LINKS = 1_000_000
 
 
 def _read_limited(path: Path) -> bytes:
@@ -305,6 +308,10 @@ def loads_scenario(
         raw = _toml.loads(text)
     except _toml.TOMLDecodeError as exc:
         raise ScenarioError(f"not valid TOML: {exc}", path=path) from exc
+    except ValueError as exc:  # the parser's own limits, e.g. an integer of over 4300 digits
+        raise ScenarioError(f"not a usable TOML file: {exc}", path=path) from exc
+    except RecursionError:
+        raise ScenarioError("not a usable TOML file: arrays or tables nested too deeply", path=path) from None
     reader = _Reader(path, Path(base_dir) if base_dir is not None else None, files)
     scenario = reader.scenario(raw, text)
     # Build what the core will be given, so its own checks fail now rather than mid-run.
@@ -502,8 +509,8 @@ class _Reader:
         n = None
         if "n" in t:
             n = int(self.number(t["n"], "chain.n", integer=True))
-            if n < 1:
-                raise self.error("chain.n", f"must be >= 1, got {n}")
+            if not 1 <= n <= MAX_LINKS:
+                raise self.error("chain.n", f"must be from 1 to {MAX_LINKS}, got {_describe(n)}")
         if n is None:
             for name in ("lengths", "masses", "com", "inertia"):
                 if isinstance(t.get(name), list):
