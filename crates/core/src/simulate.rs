@@ -174,6 +174,14 @@ struct Recorder {
 }
 
 impl Recorder {
+    /// A row from an interpolant: a step's ends are checked for blow-up, but its dense output
+    /// can still overflow between them, and a NaN must never be returned as a result.
+    fn push_interpolated(&mut self, t: f64, y: &[f64]) -> Result<()> {
+        check_state_finite(t, y)?;
+        self.push(t, y);
+        Ok(())
+    }
+
     fn push(&mut self, t: f64, y: &[f64]) {
         self.t.push(t);
         self.y.extend_from_slice(y);
@@ -408,11 +416,11 @@ fn run_fixed<T: TorqueSource, I: FixedStep>(
                     if let Some(tv) = t_eval {
                         while next_out < tv.len() && tv[next_out] <= te {
                             hermite(&y_start, &fa, &y_end, &fb, h, (tv[next_out] - t) / h, &mut out);
-                            rec.push(tv[next_out], &out);
+                            rec.push_interpolated(tv[next_out], &out)?;
                             next_out += 1;
                         }
                     }
-                    rec.push(te, &ye);
+                    rec.push_interpolated(te, &ye)?;
                     y.copy_from_slice(&ye);
                     rec.stopped_at = Some(te);
                     return Ok(rec);
@@ -427,7 +435,7 @@ fn run_fixed<T: TorqueSource, I: FixedStep>(
             sys.rhs(t_next, y, &mut f1)?;
             while next_out < te.len() && te[next_out] < t_next - 1e-9 * h {
                 hermite(&y0, &f0, y, &f1, h, (te[next_out] - t) / h, &mut out);
-                rec.push(te[next_out], &out);
+                rec.push_interpolated(te[next_out], &out)?;
                 next_out += 1;
             }
             std::mem::swap(&mut f0, &mut f1);
@@ -545,12 +553,12 @@ fn run_dop853<T: TorqueSource>(
                         if let Some(tv) = t_eval {
                             while next_out < tv.len() && tv[next_out] <= te {
                                 rk.interpolate(y, (tv[next_out] - t) / h_try, &mut out);
-                                rec.push(tv[next_out], &out);
+                                rec.push_interpolated(tv[next_out], &out)?;
                                 next_out += 1;
                             }
                         }
                         stats.steps += 1;
-                        rec.push(te, &ye);
+                        rec.push_interpolated(te, &ye)?;
                         y.copy_from_slice(&ye);
                         rec.stopped_at = Some(te);
                         return Ok(rec);
@@ -561,7 +569,7 @@ fn run_dop853<T: TorqueSource>(
                 if let Some(te) = t_eval {
                     while next_out < te.len() && te[next_out] < t_new {
                         rk.interpolate(y, (te[next_out] - t) / h_try, &mut out);
-                        rec.push(te[next_out], &out);
+                        rec.push_interpolated(te[next_out], &out)?;
                         next_out += 1;
                     }
                 }
