@@ -219,6 +219,28 @@ fn check_steps(steps: f64, what: &str) -> Result<()> {
     Ok(())
 }
 
+/// The time in `[t, t + dt]` at which `|theta|` reaches pi on the step's cubic Hermite
+/// interpolant, from `(theta, theta')` at both ends (the end one has `|theta| >= pi`); by
+/// bisection to the last bit of the step fraction.
+pub(crate) fn flip_time(t: f64, dt: f64, start: (f64, f64), end: (f64, f64)) -> f64 {
+    let target = std::f64::consts::PI.copysign(end.0);
+    let theta_at = |x: f64| {
+        let mut at = [0.0];
+        hermite(&[start.0], &[start.1], &[end.0], &[end.1], dt, x, &mut at);
+        at[0]
+    };
+    let (mut lo, mut hi) = (0.0f64, 1.0f64);
+    for _ in 0..60 {
+        let mid = 0.5 * (lo + hi);
+        if (theta_at(mid) - target) * target.signum() >= 0.0 {
+            hi = mid;
+        } else {
+            lo = mid;
+        }
+    }
+    (t + hi * dt).min(t + dt)
+}
+
 /// [`first_flips`] one trajectory at a time with the generic [`Rk4`] over a
 /// [`ChainSystem`](crate::system::ChainSystem): any N, any built-in torque. Kept callable for comparisons with the kernel.
 pub fn first_flips_scalar(
@@ -253,27 +275,10 @@ pub fn first_flips_scalar(
                     y0.copy_from_slice(&y);
                     rk.step(sys, t, &mut y, dt)?;
                     if let Some(&k) = links.iter().find(|&&k| y[k].abs() >= pi) {
-                        // Locate |theta_k| = pi on the step's cubic Hermite interpolant.
-                        let target = pi.copysign(y[k]);
                         let (mut f0, mut f1) = (vec![0.0; d], vec![0.0; d]);
                         sys.rhs(t, &y0, &mut f0)?;
                         sys.rhs(t + dt, &y, &mut f1)?;
-                        let theta_at = |x: f64| {
-                            let mut at = [0.0];
-                            let k1 = k..k + 1;
-                            hermite(&y0[k1.clone()], &f0[k1.clone()], &y[k1.clone()], &f1[k1], dt, x, &mut at);
-                            at[0]
-                        };
-                        let (mut lo, mut hi) = (0.0f64, 1.0f64);
-                        for _ in 0..60 {
-                            let mid = 0.5 * (lo + hi);
-                            if (theta_at(mid) - target) * target.signum() >= 0.0 {
-                                hi = mid;
-                            } else {
-                                lo = mid;
-                            }
-                        }
-                        return Ok((t + hi * dt).min(t + dt));
+                        return Ok(flip_time(t, dt, (y0[k], f0[k]), (y[k], f1[k])));
                     }
                     if step % 64 == 0 && !y.iter().all(|v| v.is_finite()) {
                         return Err(Error::integration(t + dt, NON_FINITE));

@@ -22,11 +22,11 @@
 
 use std::f64::consts::PI;
 
+use crate::chaos::flip_time;
 use crate::dynamics::{Singular, PIVOT_TOL};
 use crate::error::{Error, Result};
 use crate::model::Chain;
 use crate::par::*;
-use crate::simulate::hermite;
 use crate::system::NON_FINITE;
 
 /// Trajectories advanced together: one AVX-512 register of f64, two AVX2 registers.
@@ -378,23 +378,8 @@ fn run_chunk(c: &Coef, theta0: &[f64], omega0: &[f64], steps: u64, dt: f64, watc
             let t = (lanes.step[i] - 1) as f64 * dt;
             let k = if watch[0] && lanes.y[0][i].abs() >= PI { 0 } else { 1 };
             if watch[k] && lanes.y[k][i].abs() >= PI {
-                // Locate |theta_k| = pi on the step's cubic Hermite interpolant (theta' = omega).
-                let target = PI.copysign(lanes.y[k][i]);
-                let theta_at = |x: f64| {
-                    let mut at = [0.0];
-                    hermite(&[y0[k][i]], &[y0[2 + k][i]], &[lanes.y[k][i]], &[lanes.y[2 + k][i]], dt, x, &mut at);
-                    at[0]
-                };
-                let (mut lo, mut hi) = (0.0f64, 1.0f64);
-                for _ in 0..60 {
-                    let mid = 0.5 * (lo + hi);
-                    if (theta_at(mid) - target) * target.signum() >= 0.0 {
-                        hi = mid;
-                    } else {
-                        lo = mid;
-                    }
-                }
-                out[lanes.id[i]] = (t + hi * dt).min(t + dt);
+                // On the step's cubic Hermite interpolant (theta' = omega), as the scalar path.
+                out[lanes.id[i]] = flip_time(t, dt, (y0[k][i], y0[2 + k][i]), (lanes.y[k][i], lanes.y[2 + k][i]));
             } else if lanes.step[i] >= steps {
                 if !(0..4).all(|m| lanes.y[m][i].is_finite()) {
                     return Err(Error::integration(t + dt, NON_FINITE));
