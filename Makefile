@@ -63,7 +63,7 @@ FUZZ_SEED ?=
 FUZZ_FLAGS = -max_total_time=$(FUZZ_SECONDS) -timeout=30 -rss_limit_mb=4096 -artifact_prefix=out/fuzz/ \
 	$(if $(FUZZ_SEED),-seed=$(FUZZ_SEED))
 fuzz: setup
-	@$(PY) -c "import atheris" 2>/dev/null || $(PY) -m pip install -q atheris==2.3.0 \
+	@$(PY) -c "import atheris" 2>/dev/null || $(PY) -m pip install -q atheris==3.0.0 \
 	  || { echo "error: atheris could not be installed: the fuzz targets cannot run"; exit 1; }
 	@mkdir -p out/fuzz/scenario out/fuzz/core
 	$(PY) fuzz/fuzz_scenario.py $(FUZZ_FLAGS) out/fuzz/scenario fuzz/corpus
