@@ -45,3 +45,16 @@ def test_a_restarted_in_process_run_is_identical():
     b = mp.simulate(chain, [2.0, 2.5], [0, 0], 20.0)
     assert hashlib.sha256(a.theta.tobytes()).digest() == hashlib.sha256(b.theta.tobytes()).digest()
     np.testing.assert_array_equal(a.energy, b.energy)
+
+
+def test_the_recorded_version_is_the_cores_and_matches_the_package_metadata():
+    # Checkpoints and results record mp.__version__; it must name the code that computed them.
+    try:
+        import tomllib
+    except ImportError:  # Python < 3.11
+        import tomli as tomllib
+    from importlib.metadata import version
+    from pathlib import Path
+
+    pyproject = tomllib.loads((Path(__file__).resolve().parents[1] / "pyproject.toml").read_text())
+    assert mp.__version__ == mp._core.__version__ == pyproject["project"]["version"] == version("multipendulum")

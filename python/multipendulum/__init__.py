@@ -6,8 +6,8 @@ orchestrates. Public API::
     chain = Chain(lengths, masses, com=None, inertia=None, g=9.81)   # or Chain.rods(...)
     sol = simulate(chain, theta0, omega0, t_end, method="dop853", ...)
 """
-from importlib.metadata import PackageNotFoundError, version as _version
 
+from . import _core
 from ._chain import Chain
 from ._simulate import METHOD_INFO, METHODS, Crossing, Event, EventRecord, Flip, Solution, Stats, simulate
 from ._torque import Sinusoid, Table
@@ -17,10 +17,9 @@ from .errors import InputError, IntegrationError
 from .modes import NormalModes, linearize, normal_modes
 from .sweeps import open_flip_map, sweep, sweep_flip_map
 
-try:
-    __version__ = _version("multipendulum")
-except PackageNotFoundError:  # pragma: no cover - running from a source tree without install
-    __version__ = "0.0.0"
+# The compiled core's version (the workspace's, kept equal to pyproject's): right also when the
+# package is imported from a source tree without install metadata (bench/.venv does so).
+__version__ = _core.__version__
 
 __all__ = [
     "Chain", "simulate", "resume", "load_checkpoint", "Solution", "Stats", "Flip", "Crossing", "Event", "EventRecord", "METHODS", "METHOD_INFO", "Sinusoid", "Table",

@@ -816,6 +816,8 @@ fn check_memory(py: Python<'_>, bytes: f64, what: &str, advice: &str) -> PyResul
 
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    // The version of the compiled core: what checkpoint archives and benchmarks record.
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add_class::<PyChain>()?;
     m.add_function(wrap_pyfunction!(simulate, m)?)?;
     m.add_function(wrap_pyfunction!(lyapunov, m)?)?;
