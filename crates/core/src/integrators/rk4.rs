@@ -26,57 +26,39 @@ impl FixedStep for Rk4 {
 
     #[inline]
     fn step<S: OdeSystem>(&mut self, sys: &mut S, t: f64, y: &mut [f64], h: f64) -> Result<()> {
-        // The double pendulum (without and with the work integral) on the stack, its loops
-        // unrolled: the same operations in the same order, so the same bits.
+        // The double pendulum (without and with the work integral) on the stack, where the
+        // constant lengths let the loops unroll; the same body, so the same bits.
         match y.len() {
-            4 => return step_on_stack::<S, 4>(sys, t, y.try_into().unwrap(), h),
-            5 => return step_on_stack::<S, 5>(sys, t, y.try_into().unwrap(), h),
+            4 => return stages(sys, t, y, h, &mut [[0.0; 4]; 5]),
+            5 => return stages(sys, t, y, h, &mut [[0.0; 5]; 5]),
             _ => {}
         }
         let [k1, k2, k3, k4] = &mut self.k;
-        let tmp = &mut self.tmp[..y.len()];
-        let half = 0.5 * h;
-        sys.rhs(t, y, k1)?;
-        for ((o, y), k) in tmp.iter_mut().zip(y.iter()).zip(k1.iter()) {
-            *o = y + half * k;
-        }
-        sys.rhs(t + half, tmp, k2)?;
-        for ((o, y), k) in tmp.iter_mut().zip(y.iter()).zip(k2.iter()) {
-            *o = y + half * k;
-        }
-        sys.rhs(t + half, tmp, k3)?;
-        for ((o, y), k) in tmp.iter_mut().zip(y.iter()).zip(k3.iter()) {
-            *o = y + h * k;
-        }
-        sys.rhs(t + h, tmp, k4)?;
-        let sixth = h / 6.0;
-        for ((((y, a), b), c), d) in y.iter_mut().zip(k1.iter()).zip(k2.iter()).zip(k3.iter()).zip(k4.iter()) {
-            *y += sixth * (a + 2.0 * (b + c) + d);
-        }
-        Ok(())
+        stages(sys, t, y, h, &mut [k1, k2, k3, k4, &mut self.tmp])
     }
 }
 
+/// The four stages and the weighted sum, in buffers `[k1, k2, k3, k4, tmp]` of `y`'s length.
 #[inline(always)]
-fn step_on_stack<S: OdeSystem, const D: usize>(sys: &mut S, t: f64, y: &mut [f64; D], h: f64) -> Result<()> {
-    let (mut k1, mut k2, mut k3, mut k4, mut tmp) = ([0.0; D], [0.0; D], [0.0; D], [0.0; D], [0.0; D]);
+fn stages<S: OdeSystem, B: AsMut<[f64]>>(sys: &mut S, t: f64, y: &mut [f64], h: f64, buf: &mut [B; 5]) -> Result<()> {
+    let [k1, k2, k3, k4, tmp] = buf.each_mut().map(|b| &mut b.as_mut()[..y.len()]);
     let half = 0.5 * h;
-    sys.rhs(t, y, &mut k1)?;
-    for i in 0..D {
-        tmp[i] = y[i] + half * k1[i];
+    sys.rhs(t, y, k1)?;
+    for ((o, y), k) in tmp.iter_mut().zip(y.iter()).zip(k1.iter()) {
+        *o = y + half * k;
     }
-    sys.rhs(t + half, &tmp, &mut k2)?;
-    for i in 0..D {
-        tmp[i] = y[i] + half * k2[i];
+    sys.rhs(t + half, tmp, k2)?;
+    for ((o, y), k) in tmp.iter_mut().zip(y.iter()).zip(k2.iter()) {
+        *o = y + half * k;
     }
-    sys.rhs(t + half, &tmp, &mut k3)?;
-    for i in 0..D {
-        tmp[i] = y[i] + h * k3[i];
+    sys.rhs(t + half, tmp, k3)?;
+    for ((o, y), k) in tmp.iter_mut().zip(y.iter()).zip(k3.iter()) {
+        *o = y + h * k;
     }
-    sys.rhs(t + h, &tmp, &mut k4)?;
+    sys.rhs(t + h, tmp, k4)?;
     let sixth = h / 6.0;
-    for i in 0..D {
-        y[i] += sixth * (k1[i] + 2.0 * (k2[i] + k3[i]) + k4[i]);
+    for ((((y, a), b), c), d) in y.iter_mut().zip(k1.iter()).zip(k2.iter()).zip(k3.iter()).zip(k4.iter()) {
+        *y += sixth * (a + 2.0 * (b + c) + d);
     }
     Ok(())
 }
