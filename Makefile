@@ -4,7 +4,6 @@
 VENV    ?= .venv
 PY      := $(VENV)/bin/python
 OUT     ?= out/demo
-WASM_TARGET := wasm32-unknown-unknown
 WEB     := python/multipendulum/web
 CHROMIUM ?= /usr/bin/chromium
 export PATH := $(HOME)/.cargo/bin:$(PATH)
@@ -15,12 +14,10 @@ $(PY):
 	python3 -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip maturin
 
-# The browser viewer's engine: the core compiled to WebAssembly, copied next to the page.
+# The browser viewer's engine: the core compiled to WebAssembly (the target added with rustup
+# if missing), copied next to the page. The wheel's build backend runs the same step.
 wasm:
-	@if command -v rustup >/dev/null; then rustup target add $(WASM_TARGET); \
-	else echo "note: no rustup; the $(WASM_TARGET) target must already be installed"; fi
-	cargo build --release -p multipendulum-wasm --target $(WASM_TARGET)
-	cp target/$(WASM_TARGET)/release/multipendulum_wasm.wasm $(WEB)/multipendulum.wasm
+	python3 build_backend/multipendulum_build.py
 
 # maturin is incremental (cargo caches), so every make rebuilds only what changed.
 build: $(PY) wasm
