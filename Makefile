@@ -1,6 +1,7 @@
 # Two commands on a fresh machine (Python 3.9+, Rust and a C compiler present):
-#   make demo   create .venv, build the Rust core in release mode, run the default scenario
-#   make test   the same set-up, then the Rust and Python test suites
+#   make demo   create .venv, build the Rust core in release mode (runtime dependencies only),
+#               run the default scenario
+#   make test   the same set-up plus the test dependencies, then the Rust and Python test suites
 VENV    ?= .venv
 PY      := $(VENV)/bin/python
 OUT     ?= out/demo
@@ -8,7 +9,7 @@ WEB     := python/multipendulum/web
 CHROMIUM ?= /usr/bin/chromium
 export PATH := $(HOME)/.cargo/bin:$(PATH)
 
-.PHONY: setup build wasm browser demo test test-rust test-python fuzz bench clean
+.PHONY: setup build build-test wasm browser demo test test-rust test-python fuzz bench clean
 
 $(PY):
 	python3 -m venv $(VENV)
@@ -19,8 +20,12 @@ $(PY):
 wasm:
 	python3 build_backend/multipendulum_build.py
 
-# maturin is incremental (cargo caches), so every make rebuilds only what changed.
+# maturin is incremental (cargo caches), so every make rebuilds only what changed. `build` installs
+# the runtime dependencies only; `build-test` adds the test suites' (pyproject's `test` extras).
 build: $(PY) wasm
+	VIRTUAL_ENV=$(abspath $(VENV)) $(VENV)/bin/maturin develop --release -q
+
+build-test: $(PY) wasm
 	VIRTUAL_ENV=$(abspath $(VENV)) $(VENV)/bin/maturin develop --release --extras test -q
 
 setup: build
@@ -44,7 +49,7 @@ browser: $(PY)
 test-rust:
 	cargo test --release -p multipendulum-core -p multipendulum-wasm -q
 
-test-python: setup browser
+test-python: build-test browser
 	$(PY) -m pytest -q
 
 # After the suites, both fuzz targets briefly, so CI exercises them (`make fuzz` runs longer,
