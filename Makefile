@@ -49,6 +49,7 @@ browser: $(PY)
 test-rust:
 	cargo test --release -p multipendulum-core -p multipendulum-wasm -q
 
+# tests/test_wheel.py also builds the wheel (`pip wheel .`) and runs it in a fresh venv.
 test-python: build-test browser
 	$(PY) -m pytest -q
 
