@@ -9,8 +9,11 @@ pub enum Error {
     /// The integration could not continue at time `t` (blow-up, singular mass matrix,
     /// step size underflow, non-convergent implicit stages).
     Integration { t: f64, reason: String },
-    /// A user-supplied torque function failed at time `t`; the binding keeps the original error.
+    /// A user-supplied function (torque, event, progress, checkpoint writer) failed at time
+    /// `t`; the binding keeps the original error.
     Torque { t: f64 },
+    /// Stopped from outside (Ctrl-C) at time `t` ([`crate::watch::Watch`]).
+    Interrupted { t: f64 },
 }
 
 impl Error {
@@ -28,6 +31,7 @@ impl fmt::Display for Error {
             Error::Input(m) => f.write_str(m),
             Error::Integration { t, reason } => write!(f, "integration failed at t = {t}: {reason}"),
             Error::Torque { t } => write!(f, "the torque function failed at t = {t}"),
+            Error::Interrupted { t } => write!(f, "interrupted at t = {t}"),
         }
     }
 }

@@ -1,31 +1,37 @@
 //! multipendulum-core: planar N-link pendulum dynamics in O(N), integrators, ensembles.
 //!
-//! Layers: [`model::Chain`] holds validated constant parameters; [`dynamics`] evaluates the
-//! Lagrangian and Hamiltonian forms with preallocated [`dynamics::Workspace`] buffers;
-//! [`integrators`] advance a state; [`simulate`] drives a run and collects its output.
+//! Layers, each using only those before it (a test keeps it so, `tests/layers.rs`):
+//! - [`error`], [`par`], [`watch`], [`memory`], [`trig`] (scalar and vectorised `sin`/`cos`),
+//!   [`interp`]: shared helpers;
+//! - [`model`]: the validated, constant [`model::Chain`];
+//! - [`dynamics`]: the Lagrangian and Hamiltonian forms in O(N) with preallocated
+//!   [`dynamics::Workspace`] buffers, the ODE systems and the torques, reference solvers;
+//! - [`integrators`]: one trait, four methods, step-size control, dense output;
+//! - [`run`]: the run driver and its clients (simulate, batches, events, checkpoints, the
+//!   frame-by-frame stepper), the energy error;
+//! - [`chaos`]: Lyapunov exponents, flip times and the flip-map kernel;
+//! - [`facts`]: what the bindings publish about the core (methods, defaults, limits).
 pub mod chaos;
 pub mod dynamics;
 pub mod error;
-pub mod events;
-pub mod flipkernel;
+pub mod facts;
+pub mod integrators;
+pub mod interp;
 pub mod memory;
 pub mod model;
 mod par;
-pub mod reference;
+pub mod run;
+pub mod trig;
+pub mod watch;
 
+pub use dynamics::reference;
+pub use dynamics::system::{ChainSystem, Form, OdeSystem};
+pub use dynamics::torque::{Builtin, Interp, Joint, TorqueSource};
 pub use dynamics::{Singular, Workspace};
 pub use error::{Error, Result};
-pub use events::{Condition, EventFn, EventSpec};
+pub use integrators::{Facts, Method};
 pub use model::Chain;
-pub mod integrators;
-pub mod simulate;
-pub mod stepper;
-pub mod system;
-pub mod torque;
-mod trig;
-
-pub use integrators::{Carry, Method};
-pub use simulate::{simulate, simulate_batch, simulate_from, Checkpoint, Checkpoints, Settings, Start, Stats, Trajectory};
-pub use stepper::Stepper;
-pub use system::{ChainSystem, Form, OdeSystem};
-pub use torque::{Builtin, Interp, Joint, TorqueSource};
+pub use run::events::{Condition, EventFn, EventSpec};
+pub use run::live::Stepper;
+pub use run::{simulate, simulate_batch, simulate_from, Checkpoint, Checkpoints, Settings, Start, Stats, Trajectory};
+pub use watch::Watch;

@@ -141,6 +141,12 @@ impl Chain {
     pub fn inertia(&self) -> &[f64] {
         &self.inertia
     }
+    /// The depth of the potential well, `g sum_i |h_i|`: the potential ranges over `+-` it
+    /// (the scale of the energy error, [`crate::run::energy`]).
+    pub fn potential_depth(&self) -> f64 {
+        self.g.abs() * self.h.iter().map(|h| h.abs()).sum::<f64>()
+    }
+
     pub fn g(&self) -> f64 {
         self.g
     }

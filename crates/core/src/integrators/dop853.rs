@@ -1,15 +1,19 @@
 //! Dormand–Prince 8(5,3) (Hairer, Norsett & Wanner, Solving ODEs I, sec. II.10; the DOP853 code).
 //! Explicit, order 8, adaptive: the step is controlled by a combined 5th/3rd-order error estimate
 //! against `atol + rtol |y|`; 12 evaluations per step (the last reused as the next step's first),
-//! 3 more for the 7th-order dense output used at `t_eval`. Not symplectic.
+//! 3 more for the 7th-order dense output used at `t_eval`. Not symplectic. A trial stage that
+//! leaves the finite states (a step far too large) is an error norm of `inf`, so the controller
+//! shrinks the step instead of giving up (as Hairer's code and SciPy do).
+use serde::{Deserialize, Serialize};
+
 use super::dop853_tableau::{A, B, C, D, E3, E5};
+use super::{misfit, Facts, Integrator};
+use crate::dynamics::system::OdeSystem;
 use crate::error::{Error, Result};
-use crate::system::OdeSystem;
+
+pub const FACTS: Facts = Facts { order: 8, symplectic: false, implicit: false, adaptive: true };
 
 const STAGES: usize = 12;
-const SAFETY: f64 = 0.9;
-const MIN_FACTOR: f64 = 0.2;
-const MAX_FACTOR: f64 = 10.0;
 
 #[derive(Debug, Clone)]
 pub struct Dop853 {
@@ -21,47 +25,49 @@ pub struct Dop853 {
     dense: Vec<f64>,
     pub rtol: f64,
     pub atol: f64,
+    /// The last step was accepted and its last stage (`f(t + h, y_new)`, first same as last) is
+    /// not yet moved to the first: the dense output still needs the old first stage.
+    fsal_pending: bool,
+    /// `dense` holds the interpolant of the last accepted step.
+    dense_ready: bool,
 }
 
-/// Outcome of one attempted step.
-pub enum Attempt {
-    /// Accepted; the proposal for the next step size.
-    Accepted { h_next: f64 },
-    /// Rejected; try again with this step size.
-    Rejected { h_next: f64 },
+/// What a checkpoint keeps: the slope at the current state that the next step starts from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Memory {
+    pub slope: Vec<f64>,
 }
 
 impl Dop853 {
     pub fn new(dim: usize, rtol: f64, atol: f64) -> Self {
-        Dop853 { dim, k: vec![0.0; 16 * dim], tmp: vec![0.0; dim], dense: vec![0.0; 7 * dim], rtol, atol }
-    }
-
-    pub fn order(&self) -> u32 {
-        8
-    }
-
-    /// `f(t, y)` for the first step (later steps reuse the last stage).
-    pub fn start<S: OdeSystem>(&mut self, sys: &mut S, t: f64, y: &[f64]) -> Result<()> {
-        let d = self.dim;
-        sys.rhs(t, y, &mut self.k[..d])
-    }
-
-    /// The slope at the current state that the next step starts from (for a checkpoint).
-    pub fn slope(&self) -> &[f64] {
-        &self.k[..self.dim]
-    }
-
-    /// Start from a saved [`Dop853::slope`] instead of evaluating it, as the run it came from did.
-    pub fn resume(&mut self, slope: &[f64]) -> Result<()> {
-        if slope.len() != self.dim {
-            return Err(Error::input(format!(
-                "the checkpoint's integrator state does not fit dop853: {} slopes expected, got {}",
-                self.dim,
-                slope.len()
-            )));
+        Dop853 {
+            dim,
+            k: vec![0.0; 16 * dim],
+            tmp: vec![0.0; dim],
+            dense: vec![0.0; 7 * dim],
+            rtol,
+            atol,
+            fsal_pending: false,
+            dense_ready: false,
         }
-        self.k[..self.dim].copy_from_slice(slope);
-        Ok(())
+    }
+
+    /// The slope at the current state that the next step starts from.
+    pub fn slope(&self) -> &[f64] {
+        let d = self.dim;
+        if self.fsal_pending {
+            &self.k[STAGES * d..(STAGES + 1) * d]
+        } else {
+            &self.k[..d]
+        }
+    }
+
+    fn apply_fsal(&mut self) {
+        if self.fsal_pending {
+            let d = self.dim;
+            self.k.copy_within(STAGES * d..(STAGES + 1) * d, 0);
+            self.fsal_pending = false;
+        }
     }
 
     /// Hairer's initial step size guess (Solving ODEs I, II.4), after `start`.
@@ -72,12 +78,21 @@ impl Dop853 {
         let f0 = self.k[..d].to_vec();
         let d0 = rms(&|m| y[m] / scale(m));
         let d1 = rms(&|m| f0[m] / scale(m));
-        let h0 = if d0 < 1e-5 || d1 < 1e-5 { 1e-6 } else { 0.01 * d0 / d1 }.min(span);
-        for m in 0..d {
-            self.tmp[m] = y[m] + h0 * f0[m];
-        }
+        let mut h0 = if d0 < 1e-5 || d1 < 1e-5 { 1e-6 } else { 0.01 * d0 / d1 }.min(span);
         let mut f1 = vec![0.0; d];
-        sys.rhs(t + h0, &self.tmp, &mut f1)?;
+        // An explicit Euler trial that leaves the finite (or non-singular) states says the
+        // guess is far too large: shrink it, as a rejected step would be.
+        loop {
+            for m in 0..d {
+                self.tmp[m] = y[m] + h0 * f0[m];
+            }
+            match sys.rhs(t + h0, &self.tmp, &mut f1) {
+                Ok(()) if f1.iter().all(|v| v.is_finite()) => break,
+                Ok(()) | Err(Error::Integration { .. }) if h0 > 1e-300 => h0 *= 0.01,
+                Ok(()) => return Err(Error::integration(t, crate::dynamics::system::NON_FINITE)),
+                Err(e) => return Err(e),
+            }
+        }
         let d2 = rms(&|m| (f1[m] - f0[m]) / scale(m)) / h0;
         let h1 = if d1 <= 1e-15 && d2 <= 1e-15 {
             (h0 * 1e-3).max(1e-6)
@@ -87,18 +102,11 @@ impl Dop853 {
         Ok((100.0 * h0).min(h1).min(span))
     }
 
-    /// Try one step of size `h` from `(t, y)`; on acceptance `y_new` holds the new state and the
-    /// stages are kept for `prepare_dense`. With `fixed` the step is accepted whatever its error.
-    pub fn attempt<S: OdeSystem>(
-        &mut self,
-        sys: &mut S,
-        t: f64,
-        y: &[f64],
-        h: f64,
-        y_new: &mut [f64],
-        rejected_before: bool,
-        fixed: bool,
-    ) -> Result<Attempt> {
+    /// Try one step of size `h` from `(t, y)` into `y_new`; the combined error norm (`inf` when a
+    /// stage left the finite or non-singular states).
+    fn trial<S: OdeSystem>(&mut self, sys: &mut S, t: f64, y: &[f64], h: f64, y_new: &mut [f64]) -> Result<f64> {
+        self.apply_fsal();
+        self.dense_ready = false;
         let d = self.dim;
         for s in 1..STAGES {
             for m in 0..d {
@@ -109,7 +117,10 @@ impl Dop853 {
                 self.tmp[m] = y[m] + h * acc;
             }
             let (_, rest) = self.k.split_at_mut(s * d);
-            sys.rhs(t + C[s] * h, &self.tmp, &mut rest[..d])?;
+            match sys.rhs(t + C[s] * h, &self.tmp, &mut rest[..d]) {
+                Err(Error::Integration { .. }) => return Ok(f64::INFINITY),
+                other => other?,
+            }
         }
         for m in 0..d {
             let mut acc = 0.0;
@@ -120,10 +131,10 @@ impl Dop853 {
         }
         {
             let (_, rest) = self.k.split_at_mut(STAGES * d);
-            sys.rhs(t + h, y_new, &mut rest[..d])?;
-        }
-        if fixed {
-            return Ok(Attempt::Accepted { h_next: h });
+            match sys.rhs(t + h, y_new, &mut rest[..d]) {
+                Err(Error::Integration { .. }) => return Ok(f64::INFINITY),
+                other => other?,
+            }
         }
         // Combined error norm of DOP853 (scipy's `_estimate_error_norm`).
         let (mut e5, mut e3) = (0.0, 0.0);
@@ -138,34 +149,15 @@ impl Dop853 {
             e5 += (a5 / scale).powi(2);
             e3 += (a3 / scale).powi(2);
         }
-        let err = if e5 == 0.0 && e3 == 0.0 { 0.0 } else { h.abs() * e5 / ((e5 + 0.01 * e3) * d as f64).sqrt() };
-        let exponent = -1.0 / 8.0;
-        if err < 1.0 {
-            let mut factor = if err == 0.0 { MAX_FACTOR } else { MAX_FACTOR.min(SAFETY * err.powf(exponent)) };
-            if rejected_before {
-                factor = factor.min(1.0);
-            }
-            Ok(Attempt::Accepted { h_next: h * factor })
-        } else if err.is_finite() {
-            Ok(Attempt::Rejected { h_next: h * MIN_FACTOR.max(SAFETY * err.powf(exponent)) })
-        } else {
-            Ok(Attempt::Rejected { h_next: h * MIN_FACTOR })
-        }
+        Ok(if e5 == 0.0 && e3 == 0.0 { 0.0 } else { h.abs() * e5 / ((e5 + 0.01 * e3) * d as f64).sqrt() })
     }
 
-    /// After an accepted step, make the first stage of the next step and (if `dense`) the 7th
-    /// order interpolant between `(t, y)` and `(t + h, y_new)`: 3 more evaluations.
-    pub fn finish_step<S: OdeSystem>(
-        &mut self,
-        sys: &mut S,
-        t: f64,
-        y: &[f64],
-        y_new: &[f64],
-        h: f64,
-        dense: bool,
-    ) -> Result<()> {
+    /// The 7th-order interpolant between `(t, y)` and `(t + h, y_new)` of the last accepted
+    /// step: 3 more evaluations, from its stages (so before they are reused).
+    fn make_dense<S: OdeSystem>(&mut self, sys: &mut S, t: f64, y: &[f64], y_new: &[f64], h: f64) -> Result<()> {
+        debug_assert!(self.fsal_pending, "dense output is made from the stages of the last accepted step");
         let d = self.dim;
-        if dense {
+        {
             for s in 13..16 {
                 for m in 0..d {
                     let mut acc = 0.0;
@@ -192,13 +184,11 @@ impl Dop853 {
                 }
             }
         }
-        // FSAL: the last stage is the next step's first.
-        self.k.copy_within(STAGES * d..(STAGES + 1) * d, 0);
         Ok(())
     }
 
-    /// The dense output at fraction `x` of the last step (after `finish_step(.., dense = true)`).
-    pub fn interpolate(&self, y_old: &[f64], x: f64, out: &mut [f64]) {
+    /// The dense output at fraction `x` of the last step (after `make_dense`).
+    fn interpolate_at(&self, y_old: &[f64], x: f64, out: &mut [f64]) {
         let d = self.dim;
         for m in 0..d {
             let mut acc = 0.0;
@@ -208,5 +198,57 @@ impl Dop853 {
             }
             out[m] = y_old[m] + acc;
         }
+    }
+}
+
+impl Integrator for Dop853 {
+    type Memory = Memory;
+
+    fn facts(&self) -> Facts {
+        FACTS
+    }
+
+    /// `f(t, y)` for the first step (later steps reuse the last stage).
+    fn start<S: OdeSystem>(&mut self, sys: &mut S, t: f64, y: &[f64]) -> Result<()> {
+        let d = self.dim;
+        self.fsal_pending = false;
+        self.dense_ready = false;
+        sys.rhs(t, y, &mut self.k[..d])
+    }
+
+    #[inline]
+    fn attempt<S: OdeSystem>(&mut self, sys: &mut S, t: f64, y: &[f64], h: f64, y_new: &mut [f64]) -> Result<Option<f64>> {
+        self.trial(sys, t, y, h, y_new).map(Some)
+    }
+
+    fn accept(&mut self) {
+        self.fsal_pending = true;
+    }
+
+    fn dense<S: OdeSystem>(&mut self, sys: &mut S, t: f64, y: &[f64], h: f64, _t_new: f64, y_new: &[f64]) -> Result<()> {
+        if !self.dense_ready {
+            self.make_dense(sys, t, y, y_new, h)?;
+            self.dense_ready = true;
+        }
+        Ok(())
+    }
+
+    fn interpolate(&self, y: &[f64], _y_new: &[f64], _h: f64, x: f64, out: &mut [f64]) {
+        self.interpolate_at(y, x, out)
+    }
+
+    fn save(&self) -> Memory {
+        Memory { slope: self.slope().to_vec() }
+    }
+
+    /// Start from a saved slope instead of evaluating it, as the run it came from did.
+    fn restore(&mut self, m: Memory) -> Result<()> {
+        if m.slope.len() != self.dim {
+            return Err(misfit("dop853", format!("{} slopes expected, got {}", self.dim, m.slope.len())));
+        }
+        self.k[..self.dim].copy_from_slice(&m.slope);
+        self.fsal_pending = false;
+        self.dense_ready = false;
+        Ok(())
     }
 }

@@ -6,9 +6,17 @@
 //! 5–15 iterations. The stage equations are iterated until the increments stop decreasing at
 //! round-off (Hairer, McLachlan & Razakarivony 2008), starting from the previous step's
 //! collocation polynomial; the update uses compensated summation so round-off does not drift.
-use super::{Carry, FixedStep};
+use serde::{Deserialize, Serialize};
+
+use super::dense::{Hermite, Slope};
+use super::{misfit, Facts, Integrator};
+use crate::dynamics::system::OdeSystem;
 use crate::error::{Error, Result};
-use crate::system::OdeSystem;
+
+/// The facts of the `stages`-stage method (order 2s, A-stable, symplectic and implicit).
+pub const fn facts(stages: usize) -> Facts {
+    Facts { order: 2 * stages as u32, symplectic: true, implicit: true, adaptive: false }
+}
 
 const MAX_ITERATIONS: usize = 100;
 
@@ -28,6 +36,18 @@ pub struct Gauss {
     last_h: Option<f64>,
     /// Fixed-point iterations so far.
     pub iterations: u64,
+    dense: Hermite,
+}
+
+/// What later steps depend on: the stage slopes (the next step's starting guess), the
+/// compensated-summation residuals, the step size whose stages they are (the guess is
+/// extrapolated only for a next step of exactly this size), and the dense output's slope.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Memory {
+    pub k: Vec<f64>,
+    pub comp: Vec<f64>,
+    pub last_h: Option<f64>,
+    pub slope: Slope,
 }
 
 impl Gauss {
@@ -69,61 +89,75 @@ impl Gauss {
             comp: vec![0.0; dim],
             last_h: None,
             iterations: 0,
+            dense: Hermite::new(dim),
         }
     }
 
-    /// Forget the previous step (after the state was changed from outside).
-    pub fn reset(&mut self) {
-        self.last_h = None;
-        self.comp.fill(0.0);
-    }
-
-    /// The integrator's state beyond `y` (stage derivatives, compensation, last step size), so
-    /// a restarted run can continue bit for bit.
-    pub fn state(&self) -> (Vec<f64>, Vec<f64>, Option<f64>) {
-        (self.k.clone(), self.comp.clone(), self.last_h)
-    }
-
-    pub fn set_state(&mut self, k: &[f64], comp: &[f64], last_h: Option<f64>) {
-        self.k.copy_from_slice(k);
-        self.comp.copy_from_slice(comp);
-        self.last_h = last_h;
+    pub fn name(&self) -> &'static str {
+        if self.s == 2 {
+            "gauss4"
+        } else {
+            "gauss6"
+        }
     }
 }
 
-impl FixedStep for Gauss {
-    fn order(&self) -> u32 {
-        2 * self.s as u32
-    }
-    fn symplectic(&self) -> bool {
-        true
+impl Integrator for Gauss {
+    type Memory = Memory;
+
+    fn facts(&self) -> Facts {
+        facts(self.s)
     }
 
     fn iterations(&self) -> u64 {
         self.iterations
     }
 
-    fn carry(&self) -> Carry {
-        Carry { k: self.k.clone(), comp: self.comp.clone(), h: self.last_h }
-    }
-
-    fn restore(&mut self, carry: &Carry) -> Result<()> {
-        if carry.k.len() != self.k.len() || carry.comp.len() != self.comp.len() || carry.h.is_some_and(|h| !(h.is_finite() && h > 0.0)) {
-            return Err(Error::input(format!(
-                "the checkpoint's integrator state does not fit gauss{}: {} stage slopes and {} residuals \
-                 expected, got {} and {}",
-                2 * self.s,
-                self.k.len(),
-                self.comp.len(),
-                carry.k.len(),
-                carry.comp.len()
-            )));
-        }
-        self.set_state(&carry.k, &carry.comp, carry.h);
+    /// Forget the previous step: no extrapolated guess, no compensation residual.
+    fn start<S: OdeSystem>(&mut self, _sys: &mut S, _t: f64, _y: &[f64]) -> Result<()> {
+        self.last_h = None;
+        self.comp.fill(0.0);
+        self.dense.forget();
         Ok(())
     }
 
-    fn step<S: OdeSystem>(&mut self, sys: &mut S, t: f64, y: &mut [f64], h: f64) -> Result<()> {
+    fn accept(&mut self) {
+        self.dense.accept();
+    }
+
+    fn dense<S: OdeSystem>(&mut self, sys: &mut S, t: f64, y: &[f64], _h: f64, t_new: f64, y_new: &[f64]) -> Result<()> {
+        self.dense.prepare(sys, t, y, t_new, y_new)
+    }
+
+    fn interpolate(&self, y: &[f64], y_new: &[f64], h: f64, x: f64, out: &mut [f64]) {
+        self.dense.interpolate(y, y_new, h, x, out)
+    }
+
+    fn save(&self) -> Memory {
+        Memory { k: self.k.clone(), comp: self.comp.clone(), last_h: self.last_h, slope: self.dense.save() }
+    }
+
+    fn restore(&mut self, m: Memory) -> Result<()> {
+        if m.k.len() != self.k.len() || m.comp.len() != self.comp.len() || m.last_h.is_some_and(|h| !(h.is_finite() && h > 0.0)) {
+            return Err(misfit(
+                self.name(),
+                format!(
+                    "{} stage slopes and {} residuals expected, got {} and {}",
+                    self.k.len(),
+                    self.comp.len(),
+                    m.k.len(),
+                    m.comp.len()
+                ),
+            ));
+        }
+        self.dense.restore(m.slope, self.name())?;
+        self.k.copy_from_slice(&m.k);
+        self.comp.copy_from_slice(&m.comp);
+        self.last_h = m.last_h;
+        Ok(())
+    }
+
+    fn attempt<S: OdeSystem>(&mut self, sys: &mut S, t: f64, y: &[f64], h: f64, y_new: &mut [f64]) -> Result<Option<f64>> {
         let (s, d) = (self.s, y.len());
         if self.last_h == Some(h) {
             self.k_new.copy_from_slice(&self.k);
@@ -179,9 +213,9 @@ impl FixedStep for Gauss {
             let inc: f64 = (0..s).map(|i| self.b[i] * self.k[i * d + m]).sum::<f64>() * h + self.comp[m];
             let new = y[m] + inc;
             self.comp[m] = inc - (new - y[m]);
-            y[m] = new;
+            y_new[m] = new;
         }
         self.last_h = Some(h);
-        Ok(())
+        Ok(None)
     }
 }

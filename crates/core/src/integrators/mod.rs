@@ -1,56 +1,88 @@
-//! Integrators, each a small type with a declared order. Names are shared by Python, the CLI and
-//! the viewer: `rk4`, `dop853`, `gauss4`, `gauss6`.
+//! Integrators, each a small type behind one trait ([`Integrator`]) with its declared facts
+//! ([`Facts`]: order, symplectic, implicit, adaptive) and a typed memory that a checkpoint saves
+//! and restores. Names are shared by Python, the CLI and the viewer: `rk4`, `dop853`, `gauss4`,
+//! `gauss6`; [`Method`] is the enum at the boundary, and its facts come from the integrators.
+//!
+//! Every integrator maps `(t, y)` and a step `h` to a trial state `y_new` without touching `y`
+//! ([`Integrator::attempt`]); the run driver keeps or drops it (and swaps buffers instead of
+//! copying). Dense output over the last accepted step is the integrator's own
+//! ([`Integrator::dense`], [`Integrator::interpolate`]): DOP853's 7th-order interpolant, or the
+//! cubic Hermite interpolant of the fixed-step methods ([`dense::Hermite`]). Step-size control
+//! is a small type of its own ([`control::Controller`]).
+pub mod control;
+pub mod dense;
 pub mod dop853;
 mod dop853_tableau;
 pub mod gauss;
 pub mod rk4;
 
-use crate::error::{Error, Result};
-use crate::system::OdeSystem;
+use serde::{Deserialize, Serialize};
 
+use crate::dynamics::system::OdeSystem;
+use crate::error::{Error, Result};
+
+pub use control::{Controller, Decision};
 pub use dop853::Dop853;
 pub use gauss::Gauss;
 pub use rk4::Rk4;
 
-/// A one-step method with a fixed step size.
-pub trait FixedStep {
+/// What an integrator is, as stated facts (the tests measure the order).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Facts {
     /// Classical order of accuracy (global error ~ dt^order).
-    fn order(&self) -> u32;
-    /// Whether the one-step map is symplectic on Hamilton's equations.
-    fn symplectic(&self) -> bool;
-    /// Advance `y` from `t` to `t + h` in place.
-    fn step<S: OdeSystem>(&mut self, sys: &mut S, t: f64, y: &mut [f64], h: f64) -> Result<()>;
-    /// Fixed-point iterations so far (implicit methods).
+    pub order: u32,
+    /// Whether the one-step map is symplectic on Hamilton's equations (of a conservative chain).
+    pub symplectic: bool,
+    /// Whether each step solves implicit stage equations.
+    pub implicit: bool,
+    /// Whether it estimates its local error, so that a controller can choose the step.
+    pub adaptive: bool,
+}
+
+/// A one-step method. Generic over the system so the hot loop is monomorphised.
+pub trait Integrator {
+    /// What a checkpoint must keep so that a restarted run continues bit for bit.
+    type Memory: Clone + std::fmt::Debug + PartialEq + Serialize + for<'de> Deserialize<'de>;
+
+    fn facts(&self) -> Facts;
+
+    /// Called before the first step from `(t, y)` and whenever the state was changed from
+    /// outside: forget what depended on the previous state.
+    fn start<S: OdeSystem>(&mut self, sys: &mut S, t: f64, y: &[f64]) -> Result<()>;
+
+    /// A trial step of size `h` from `(t, y)` into `y_new`. Returns the error norm of the step
+    /// against the tolerances for adaptive methods (`inf` for a trial that left the finite
+    /// states: the controller shrinks the step), `None` for fixed-step ones.
+    fn attempt<S: OdeSystem>(&mut self, sys: &mut S, t: f64, y: &[f64], h: f64, y_new: &mut [f64]) -> Result<Option<f64>>;
+
+    /// The last attempt became the new state.
+    fn accept(&mut self) {}
+
+    /// Make the dense output of the last accepted step, of size `h` from `(t, y)` to
+    /// `(t_new, y_new)` (`t_new` is `t + h` but for rounding, and the end of the time grid).
+    /// Idempotent: a second call costs nothing.
+    fn dense<S: OdeSystem>(&mut self, sys: &mut S, t: f64, y: &[f64], h: f64, t_new: f64, y_new: &[f64]) -> Result<()>;
+
+    /// The state at `t + x h` of the last accepted step, after [`Integrator::dense`].
+    fn interpolate(&self, y: &[f64], y_new: &[f64], h: f64, x: f64, out: &mut [f64]);
+
+    /// Fixed-point or Newton iterations so far (implicit methods).
     fn iterations(&self) -> u64 {
         0
     }
-    /// What later steps depend on, for a checkpoint (nothing for a method without memory).
-    fn carry(&self) -> Carry {
-        Carry::default()
-    }
-    /// Continue from a [`FixedStep::carry`]; refuses one of another method or size.
-    fn restore(&mut self, carry: &Carry) -> Result<()> {
-        if carry == &Carry::default() {
-            Ok(())
-        } else {
-            Err(Error::input("the checkpoint's integrator state is not that of this method"))
-        }
-    }
+
+    fn save(&self) -> Self::Memory;
+
+    /// Continue from a saved memory; refuses one of another size.
+    fn restore(&mut self, memory: Self::Memory) -> Result<()>;
 }
 
-/// An integrator's state carried from one step to the next, as plain numbers (checkpoints).
-/// dop853: `k` the slope at the current state (first-same-as-last), `h` the next step to try;
-/// gauss4/gauss6: `k` the stage slopes (stages x dim, the next step's starting guess), `comp`
-/// the compensated-summation residuals, `h` the last step (the guess is extrapolated only when
-/// the next step has exactly this size); rk4: nothing.
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct Carry {
-    pub k: Vec<f64>,
-    pub comp: Vec<f64>,
-    pub h: Option<f64>,
+/// An integrator's memory refused on restore.
+pub(crate) fn misfit(method: &str, what: String) -> Error {
+    Error::input(format!("the checkpoint's integrator state does not fit {method}: {what}"))
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 pub enum Method {
     Rk4,
     Dop853,
@@ -70,20 +102,47 @@ impl Method {
         }
     }
 
-    pub fn order(self) -> u32 {
+    /// The facts of the integrator that implements the method.
+    pub fn facts(self) -> Facts {
         match self {
-            Method::Rk4 | Method::Gauss4 => 4,
-            Method::Dop853 => 8,
-            Method::Gauss6 => 6,
+            Method::Rk4 => rk4::FACTS,
+            Method::Dop853 => dop853::FACTS,
+            Method::Gauss4 => gauss::facts(2),
+            Method::Gauss6 => gauss::facts(3),
         }
     }
 
+    pub fn order(self) -> u32 {
+        self.facts().order
+    }
+
     pub fn symplectic(self) -> bool {
-        matches!(self, Method::Gauss4 | Method::Gauss6)
+        self.facts().symplectic
+    }
+
+    pub fn implicit(self) -> bool {
+        self.facts().implicit
     }
 
     pub fn adaptive(self) -> bool {
-        self == Method::Dop853
+        self.facts().adaptive
+    }
+
+    /// Whether a run needs a step `dt` (the fixed-step methods; for an adaptive one it is the
+    /// first step, optional).
+    pub fn needs_dt(self) -> bool {
+        !self.adaptive()
+    }
+
+    /// The forms the method integrates: the symplectic methods need Hamilton's equations (their
+    /// symplecticity is a property of the canonical coordinates).
+    pub fn forms(self) -> &'static [crate::dynamics::system::Form] {
+        use crate::dynamics::system::Form;
+        if self.symplectic() {
+            &[Form::Hamiltonian]
+        } else {
+            &[Form::Lagrangian, Form::Hamiltonian]
+        }
     }
 
     pub fn parse(name: &str) -> Result<Self> {
@@ -93,3 +152,98 @@ impl Method {
         })
     }
 }
+
+/// The integrator of a [`Method`], chosen at run time; each arm calls a monomorphised integrator.
+// One per run, so the size of the largest variant costs nothing worth a box.
+#[allow(clippy::large_enum_variant)]
+#[derive(Debug, Clone)]
+pub enum AnyIntegrator {
+    Rk4(Rk4),
+    Gauss(Gauss),
+    Dop853(Dop853),
+}
+
+/// The memory of an [`AnyIntegrator`]: a checkpoint's integrator part.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub enum AnyMemory {
+    Rk4(<Rk4 as Integrator>::Memory),
+    Gauss(<Gauss as Integrator>::Memory),
+    Dop853(<Dop853 as Integrator>::Memory),
+}
+
+macro_rules! each {
+    ($self:expr, $i:ident => $body:expr) => {
+        match $self {
+            AnyIntegrator::Rk4($i) => $body,
+            AnyIntegrator::Gauss($i) => $body,
+            AnyIntegrator::Dop853($i) => $body,
+        }
+    };
+}
+
+impl AnyIntegrator {
+    pub fn new(method: Method, dim: usize, rtol: f64, atol: f64) -> Self {
+        match method {
+            Method::Rk4 => AnyIntegrator::Rk4(Rk4::new(dim)),
+            Method::Gauss4 => AnyIntegrator::Gauss(Gauss::new(2, dim)),
+            Method::Gauss6 => AnyIntegrator::Gauss(Gauss::new(3, dim)),
+            Method::Dop853 => AnyIntegrator::Dop853(Dop853::new(dim, rtol, atol)),
+        }
+    }
+
+    pub fn facts(&self) -> Facts {
+        each!(self, i => i.facts())
+    }
+
+    pub fn start<S: OdeSystem>(&mut self, sys: &mut S, t: f64, y: &[f64]) -> Result<()> {
+        each!(self, i => i.start(sys, t, y))
+    }
+
+    #[inline(always)]
+    pub fn attempt<S: OdeSystem>(&mut self, sys: &mut S, t: f64, y: &[f64], h: f64, y_new: &mut [f64]) -> Result<Option<f64>> {
+        each!(self, i => i.attempt(sys, t, y, h, y_new))
+    }
+
+    pub fn accept(&mut self) {
+        each!(self, i => i.accept())
+    }
+
+    pub fn dense<S: OdeSystem>(&mut self, sys: &mut S, t: f64, y: &[f64], h: f64, t_new: f64, y_new: &[f64]) -> Result<()> {
+        each!(self, i => i.dense(sys, t, y, h, t_new, y_new))
+    }
+
+    pub fn interpolate(&self, y: &[f64], y_new: &[f64], h: f64, x: f64, out: &mut [f64]) {
+        each!(self, i => i.interpolate(y, y_new, h, x, out))
+    }
+
+    pub fn iterations(&self) -> u64 {
+        each!(self, i => i.iterations())
+    }
+
+    pub fn save(&self) -> AnyMemory {
+        match self {
+            AnyIntegrator::Rk4(i) => AnyMemory::Rk4(i.save()),
+            AnyIntegrator::Gauss(i) => AnyMemory::Gauss(i.save()),
+            AnyIntegrator::Dop853(i) => AnyMemory::Dop853(i.save()),
+        }
+    }
+
+    pub fn restore(&mut self, memory: AnyMemory) -> Result<()> {
+        match (self, memory) {
+            (AnyIntegrator::Rk4(i), AnyMemory::Rk4(m)) => i.restore(m),
+            (AnyIntegrator::Gauss(i), AnyMemory::Gauss(m)) => i.restore(m),
+            (AnyIntegrator::Dop853(i), AnyMemory::Dop853(m)) => i.restore(m),
+            (i, _) => Err(Error::input(format!(
+                "the checkpoint's integrator state is not that of this method ({})",
+                match i {
+                    AnyIntegrator::Rk4(_) => "rk4",
+                    AnyIntegrator::Gauss(g) => g.name(),
+                    AnyIntegrator::Dop853(_) => "dop853",
+                }
+            ))),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;

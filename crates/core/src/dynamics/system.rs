@@ -1,10 +1,14 @@
 //! The chain as a first-order ODE `y' = f(t, y)` in either of the seeds' forms. The state is
 //! `[theta, omega]` (Lagrangian, seed 000) or `[theta, p]` (Hamiltonian, seed 001), followed by
 //! the work `W` done by the torque when one acts (so `E(t) - E(0) = W(t)` can be checked).
-use crate::dynamics::Workspace;
+use std::borrow::Borrow;
+
+use serde::{Deserialize, Serialize};
+
+use super::torque::TorqueSource;
+use super::Workspace;
 use crate::error::{Error, Result};
 use crate::model::Chain;
-use crate::torque::TorqueSource;
 
 /// An ODE right-hand side; the integrators are generic over it so the hot loop is monomorphised.
 pub trait OdeSystem {
@@ -12,7 +16,7 @@ pub trait OdeSystem {
     fn rhs(&mut self, t: f64, y: &[f64], dy: &mut [f64]) -> Result<()>;
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub enum Form {
     /// `(theta, omega)`, `theta_ddot = A^-1 (tau - ...)`.
     Lagrangian,
@@ -27,22 +31,31 @@ impl Form {
             Form::Hamiltonian => "hamiltonian",
         }
     }
+
+    pub const ALL: [Form; 2] = [Form::Lagrangian, Form::Hamiltonian];
+
+    pub fn parse(name: &str) -> Result<Self> {
+        Self::ALL.into_iter().find(|f| f.name() == name).ok_or_else(|| {
+            Error::input(format!("form must be \"lagrangian\" or \"hamiltonian\", got {name:?}"))
+        })
+    }
 }
 
-pub struct ChainSystem<'c, T> {
-    chain: &'c Chain,
+/// The chain's equations of motion with a torque, in one form. `C` is the chain, borrowed
+/// (`&Chain`, a run inside a call) or owned (`Chain`, a run that outlives its caller's borrow,
+/// such as the viewer's).
+pub struct ChainSystem<C, T> {
+    chain: C,
     torque: T,
     form: Form,
     ws: Workspace,
     tau: Vec<f64>,
-    /// Right-hand side evaluations so far.
-    pub evaluations: u64,
 }
 
-impl<'c, T: TorqueSource> ChainSystem<'c, T> {
-    pub fn new(chain: &'c Chain, torque: T, form: Form) -> Self {
-        let n = chain.n();
-        ChainSystem { chain, torque, form, ws: Workspace::new(n), tau: vec![0.0; n], evaluations: 0 }
+impl<C: Borrow<Chain>, T: TorqueSource> ChainSystem<C, T> {
+    pub fn new(chain: C, torque: T, form: Form) -> Self {
+        let n = chain.borrow().n();
+        ChainSystem { chain, torque, form, ws: Workspace::new(n), tau: vec![0.0; n] }
     }
 
     pub fn form(&self) -> Form {
@@ -50,7 +63,7 @@ impl<'c, T: TorqueSource> ChainSystem<'c, T> {
     }
 
     pub fn chain(&self) -> &Chain {
-        self.chain
+        self.chain.borrow()
     }
 
     /// Whether the state carries the work integral after the 2N mechanical entries.
@@ -60,7 +73,7 @@ impl<'c, T: TorqueSource> ChainSystem<'c, T> {
 }
 
 /// A failed pivot means either a non-finite state (a blow-up) or a truly singular configuration.
-pub(crate) fn singular(t: f64, y: &[f64], s: crate::dynamics::Singular) -> Error {
+pub(crate) fn singular(t: f64, y: &[f64], s: super::Singular) -> Error {
     if y.iter().all(|v| v.is_finite()) {
         Error::integration(t, s.reason())
     } else {
@@ -70,20 +83,20 @@ pub(crate) fn singular(t: f64, y: &[f64], s: crate::dynamics::Singular) -> Error
 
 pub(crate) const NON_FINITE: &str = "the state became non-finite (the motion blew up; reduce dt or the tolerances)";
 
-impl<T: TorqueSource> OdeSystem for ChainSystem<'_, T> {
+impl<C: Borrow<Chain>, T: TorqueSource> OdeSystem for ChainSystem<C, T> {
     fn dim(&self) -> usize {
-        2 * self.chain.n() + usize::from(self.torque.active())
+        2 * self.chain.borrow().n() + usize::from(self.torque.active())
     }
 
     #[inline(always)]
     fn rhs(&mut self, t: f64, y: &[f64], dy: &mut [f64]) -> Result<()> {
-        self.evaluations += 1;
-        let n = self.chain.n();
-        let active = self.torque.active();
+        let Self { chain, torque, ws, tau, .. } = self;
+        let chain: &Chain = (*chain).borrow();
+        let n = chain.n();
+        let active = torque.active();
         let (theta, second) = (&y[..n], &y[n..2 * n]);
         let (d_theta, rest) = dy.split_at_mut(n);
         let d_second = &mut rest[..n];
-        let Self { chain, torque, ws, tau, .. } = self;
         match self.form {
             Form::Lagrangian => {
                 if active {

@@ -1,14 +1,16 @@
 //! Chaos tools: Lyapunov exponents from the variational equations, and first-flip times of
 //! ensembles (the flip-time "fractal") with the energy bound that forbids flips.
-use crate::par::*;
+pub mod flipkernel;
 
+use crate::dynamics::system::{singular, ChainSystem, Form, OdeSystem, NON_FINITE};
+use crate::dynamics::torque::{Builtin, TorqueSource};
 use crate::dynamics::Workspace;
 use crate::error::{Error, Result};
-use crate::integrators::{FixedStep, Rk4};
+use crate::integrators::Rk4;
+use crate::interp::hermite;
 use crate::model::Chain;
-use crate::simulate::hermite;
-use crate::system::{singular, OdeSystem, NON_FINITE};
-use crate::torque::{Builtin, TorqueSource};
+use crate::par::*;
+use crate::watch::Watch;
 
 /// The Lagrangian form with `k` tangent vectors riding along:
 /// `y = [theta, omega, (d_theta, d_omega) x k]`.
@@ -60,6 +62,8 @@ pub struct Lyapunov {
 /// The `k` largest Lyapunov exponents (1/s) by integrating the variational equations with rk4 at
 /// step `dt` and re-orthonormalising the tangent vectors (modified Gram–Schmidt, Benettin et al.
 /// 1980) every `renorm_every` steps. `k = 2N` gives the full spectrum. Torques may depend on time.
+/// A specialised kernel (the tangent vectors are renormalised between steps), so it steps the
+/// integrator itself on the driver's grid `t_k = k dt`; `watch` stops it and shows its progress.
 #[allow(clippy::too_many_arguments)]
 pub fn lyapunov(
     chain: &Chain,
@@ -70,6 +74,7 @@ pub fn lyapunov(
     k: usize,
     renorm_every: u64,
     torque: Builtin,
+    watch: &Watch,
 ) -> Result<Lyapunov> {
     let n = chain.n();
     chain.check_state("theta0", theta0)?;
@@ -105,11 +110,17 @@ pub fn lyapunov(
     )?;
     let steps = steps as u64;
     let mut rk = Rk4::new(d);
+    let mut y_new = vec![0.0; d];
     let mut sums = vec![0.0; k];
     let mut out = Lyapunov { exponents: vec![0.0; k], times: Vec::new(), history: Vec::new() };
     for step in 1..=steps {
         let t = (step - 1) as f64 * dt;
-        rk.step(&mut sys, t, &mut y, dt)?;
+        if step % 64 == 0 {
+            watch.check(t)?;
+            watch.set_fraction(step as f64 / steps as f64);
+        }
+        rk.step(&mut sys, t, &y, dt, &mut y_new)?;
+        std::mem::swap(&mut y, &mut y_new);
         if step % renorm_every == 0 || step == steps {
             if !y.iter().all(|v| v.is_finite()) {
                 return Err(Error::integration(t + dt, NON_FINITE));
@@ -161,9 +172,11 @@ pub fn flip_energy_threshold(chain: &Chain, link: Option<usize>) -> Result<f64> 
 /// a row that starts beyond pi: 0. Runs in parallel; each result is independent of the number
 /// of threads.
 ///
-/// The undriven double pendulum goes through the SIMD kernel of [`crate::flipkernel`] (the same
+/// The undriven double pendulum goes through the SIMD kernel of [`flipkernel`] (the same
 /// steps, with its own `sin`/`cos`, so it agrees with the per-trajectory path to round-off);
 /// everything else, or `MULTIPENDULUM_FLIP_KERNEL=scalar`, through [`first_flips_scalar`].
+/// `watch` counts trajectories done and stops the work between chunks of steps.
+#[allow(clippy::too_many_arguments)]
 pub fn first_flips(
     chain: &Chain,
     theta0: &[f64],
@@ -172,14 +185,15 @@ pub fn first_flips(
     dt: f64,
     link: Option<usize>,
     torque: &Builtin,
+    watch: &Watch,
 ) -> Result<Vec<f64>> {
     let steps = check_flips(chain, theta0, omega0, t_max, dt, link)?;
     if chain.n() == 2 && matches!(torque, Builtin::None) {
-        if let Some(path) = crate::flipkernel::requested()? {
-            return crate::flipkernel::first_flips_double(chain, theta0, omega0, steps, dt, link, path);
+        if let Some(path) = flipkernel::requested()? {
+            return flipkernel::first_flips_double(chain, theta0, omega0, steps, dt, link, path, watch);
         }
     }
-    first_flips_scalar(chain, theta0, omega0, t_max, dt, link, torque)
+    first_flips_scalar(chain, theta0, omega0, t_max, dt, link, torque, watch)
 }
 
 /// Validate a flip computation's input; the number of steps.
@@ -242,7 +256,8 @@ pub(crate) fn flip_time(t: f64, dt: f64, start: (f64, f64), end: (f64, f64)) -> 
 }
 
 /// [`first_flips`] one trajectory at a time with the generic [`Rk4`] over a
-/// [`ChainSystem`](crate::system::ChainSystem): any N, any built-in torque. Kept callable for comparisons with the kernel.
+/// [`ChainSystem`]: any N, any built-in torque. Kept callable for comparisons with the kernel.
+#[allow(clippy::too_many_arguments)]
 pub fn first_flips_scalar(
     chain: &Chain,
     theta0: &[f64],
@@ -251,6 +266,7 @@ pub fn first_flips_scalar(
     dt: f64,
     link: Option<usize>,
     torque: &Builtin,
+    watch: &Watch,
 ) -> Result<Vec<f64>> {
     let n = chain.n();
     let steps = check_flips(chain, theta0, omega0, t_max, dt, link)?;
@@ -259,8 +275,9 @@ pub fn first_flips_scalar(
         .par_chunks(n)
         .zip(omega0.par_chunks(n))
         .map_init(
-            || (crate::system::ChainSystem::new(chain, torque.clone(), crate::system::Form::Lagrangian), Rk4::new(2 * n + 1)),
+            || (ChainSystem::new(chain, torque.clone(), Form::Lagrangian), Rk4::new(2 * n + 1)),
             |(sys, rk), (th, om)| {
+                watch.check(0.0)?;
                 let pi = std::f64::consts::PI;
                 if links.iter().any(|&k| th[k].abs() >= pi) {
                     return Ok(0.0);
@@ -270,21 +287,28 @@ pub fn first_flips_scalar(
                 y[..n].copy_from_slice(th);
                 y[n..2 * n].copy_from_slice(om);
                 let mut y0 = y.clone();
-                for step in 0..steps {
-                    let t = step as f64 * dt;
-                    y0.copy_from_slice(&y);
-                    rk.step(sys, t, &mut y, dt)?;
-                    if let Some(&k) = links.iter().find(|&&k| y[k].abs() >= pi) {
-                        let (mut f0, mut f1) = (vec![0.0; d], vec![0.0; d]);
-                        sys.rhs(t, &y0, &mut f0)?;
-                        sys.rhs(t + dt, &y, &mut f1)?;
-                        return Ok(flip_time(t, dt, (y0[k], f0[k]), (y[k], f1[k])));
+                let flip = (|| {
+                    for step in 0..steps {
+                        let t = step as f64 * dt;
+                        std::mem::swap(&mut y0, &mut y);
+                        rk.step(sys, t, &y0, dt, &mut y)?;
+                        if let Some(&k) = links.iter().find(|&&k| y[k].abs() >= pi) {
+                            let (mut f0, mut f1) = (vec![0.0; d], vec![0.0; d]);
+                            sys.rhs(t, &y0, &mut f0)?;
+                            sys.rhs(t + dt, &y, &mut f1)?;
+                            return Ok(flip_time(t, dt, (y0[k], f0[k]), (y[k], f1[k])));
+                        }
+                        if step % 64 == 0 {
+                            if !y.iter().all(|v| v.is_finite()) {
+                                return Err(Error::integration(t + dt, NON_FINITE));
+                            }
+                            watch.check(t)?;
+                        }
                     }
-                    if step % 64 == 0 && !y.iter().all(|v| v.is_finite()) {
-                        return Err(Error::integration(t + dt, NON_FINITE));
-                    }
-                }
-                Ok(f64::INFINITY)
+                    Ok(f64::INFINITY)
+                })();
+                watch.add_units(1);
+                flip
             },
         )
         .collect()
@@ -309,9 +333,9 @@ mod tests {
     #[test]
     fn small_oscillations_have_near_zero_exponents_and_the_spectrum_sums_to_zero() {
         let chain = Chain::new(&[1.0, 1.0], &[1.0, 1.0], None, None, 9.81).unwrap();
-        let small = lyapunov(&chain, &[0.01, 0.0], &[0.0, 0.0], 200.0, 0.01, 4, 10, Builtin::None).unwrap();
+        let small = lyapunov(&chain, &[0.01, 0.0], &[0.0, 0.0], 200.0, 0.01, 4, 10, Builtin::None, &Watch::new()).unwrap();
         assert!(small.exponents.iter().all(|l| l.abs() < 0.05), "{:?}", small.exponents);
-        let chaotic = lyapunov(&chain, &[2.0, 2.5], &[0.0, 0.0], 200.0, 0.005, 4, 10, Builtin::None).unwrap();
+        let chaotic = lyapunov(&chain, &[2.0, 2.5], &[0.0, 0.0], 200.0, 0.005, 4, 10, Builtin::None, &Watch::new()).unwrap();
         let sum: f64 = chaotic.exponents.iter().sum();
         assert!(chaotic.exponents[0] > 0.5, "{:?}", chaotic.exponents);
         assert!(sum.abs() < 0.02 * chaotic.exponents[0], "{:?}", chaotic.exponents);

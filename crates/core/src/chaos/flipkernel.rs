@@ -22,59 +22,17 @@
 
 use std::f64::consts::PI;
 
-use crate::chaos::flip_time;
+use super::flip_time;
+use crate::trig::lanes::{sin_cos, Lane, Path, LANES};
 use crate::dynamics::{Singular, PIVOT_TOL};
 use crate::error::{Error, Result};
 use crate::model::Chain;
 use crate::par::*;
-use crate::system::NON_FINITE;
+use crate::dynamics::system::NON_FINITE;
+use crate::watch::Watch;
 
-/// Trajectories advanced together: one AVX-512 register of f64, two AVX2 registers.
-const LANES: usize = 8;
 /// Trajectories per parallel task (each task refills its lanes from its own chunk).
 const CHUNK: usize = 512;
-type Lane = [f64; LANES];
-
-/// A compiled copy of the kernel.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Path {
-    /// Whatever the target's baseline allows (SSE2 on x86_64, simd128 or scalar on wasm32).
-    Portable,
-    /// x86_64 with AVX2 and FMA.
-    Avx2,
-    /// x86_64 with AVX-512F and FMA.
-    Avx512,
-}
-
-impl Path {
-    pub const ALL: [Path; 3] = [Path::Portable, Path::Avx2, Path::Avx512];
-
-    pub fn name(self) -> &'static str {
-        match self {
-            Path::Portable => "portable",
-            Path::Avx2 => "avx2",
-            Path::Avx512 => "avx512",
-        }
-    }
-
-    /// Whether this CPU can run the path.
-    pub fn available(self) -> bool {
-        match self {
-            Path::Portable => true,
-            #[cfg(target_arch = "x86_64")]
-            Path::Avx2 => std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma"),
-            #[cfg(target_arch = "x86_64")]
-            Path::Avx512 => std::arch::is_x86_feature_detected!("avx512f") && std::arch::is_x86_feature_detected!("fma"),
-            #[cfg(not(target_arch = "x86_64"))]
-            _ => false,
-        }
-    }
-
-    /// The widest path this CPU runs.
-    pub fn best() -> Path {
-        Path::ALL.into_iter().rev().find(|p| p.available()).unwrap_or(Path::Portable)
-    }
-}
 
 /// The environment variable that picks the flip-map route: `auto` (default), `scalar` (the
 /// per-trajectory rk4 of `chaos::first_flips_scalar`), or a kernel path by name. For tests and
@@ -115,135 +73,6 @@ impl Coef {
         // The same products, in the same order, as the scalar expressions they replace.
         Coef { gh1: g * h1, gh2: g * h2, k: chain.lengths[0] * h2, d1, d2, d1d2: d1 * d2, tol: PIVOT_TOL * d1 * d2 }
     }
-}
-
-// The constants are fdlibm's, digit for digit.
-// Cody–Waite reduction by pi/2 in three parts (fdlibm's __ieee754_rem_pio2, medium case with its
-// second iteration): pi/2 = P1 + P2 + P2T, with P1 and P2 of 33 bits so that `n * P1` and
-// `n * P2` are exact while |n| < 2^20.
-const TWO_OVER_PI: f64 = std::f64::consts::FRAC_2_PI;
-const P1: f64 = 1.57079632673412561417e+00;
-const P2: f64 = 6.07710050630396597660e-11;
-const P2T: f64 = 2.02226624879595063154e-21;
-/// Adding 1.5 * 2^52 rounds to the nearest integer (ties to even) and leaves it in the low bits.
-const ROUND: f64 = 6755399441055744.0;
-/// Beyond this |x| the lane falls back to `crate::trig::sin_cos` (|n| stays far below 2^20).
-const REDUCE_LIMIT: f64 = 1.0e5;
-
-// fdlibm's k_sin.c / k_cos.c minimax polynomials on [-pi/4, pi/4].
-const S1: f64 = -1.66666666666666324348e-01;
-const S2: f64 = 8.33333333332248946124e-03;
-const S3: f64 = -1.98412698298579493134e-04;
-const S4: f64 = 2.75573137070700676789e-06;
-const S5: f64 = -2.50507602534068634195e-08;
-const S6: f64 = 1.58969099521155010221e-10;
-const C1: f64 = 4.16666666666666019037e-02;
-const C2: f64 = -1.38888888888741095749e-03;
-const C3: f64 = 2.48015872894767294178e-05;
-const C4: f64 = -2.75573143513906633035e-07;
-const C5: f64 = 2.08757232129817482790e-09;
-const C6: f64 = -1.13596475577881948265e-11;
-
-/// `(sin x, cos x)` for |x| <= REDUCE_LIMIT, branch-free so that a loop over lanes vectorises.
-#[inline(always)]
-fn sin_cos_reduced(x: f64) -> (f64, f64) {
-    let kd = x.mul_add(TWO_OVER_PI, ROUND);
-    let q = kd.to_bits();
-    let n = kd - ROUND;
-    let r = (-n).mul_add(P1, x);
-    let w = n * P2;
-    let t = r;
-    let r = t - w;
-    let w = n * P2T - ((t - r) - w);
-    let y0 = r - w;
-    let y1 = (r - y0) - w;
-    // The kernels on y0 + y1 in [-pi/4, pi/4] (FreeBSD's __kernel_sin / __kernel_cos).
-    let z = y0 * y0;
-    let zz = z * z;
-    let rs = (z * zz).mul_add(z.mul_add(S6, S5), z.mul_add(z.mul_add(S4, S3), S2));
-    let v = z * y0;
-    let ks = y0 - (-v).mul_add(S1, z.mul_add((-v).mul_add(rs, 0.5 * y1), -y1));
-    let rc = (zz * zz).mul_add(z.mul_add(z.mul_add(C6, C5), C4), z * z.mul_add(z.mul_add(C3, C2), C1));
-    let hz = 0.5 * z;
-    let wc = 1.0 - hz;
-    let kc = wc + (((1.0 - wc) - hz) + z.mul_add(rc, -(y0 * y1)));
-    // Quadrant n mod 4: sin = (ks, kc, -ks, -kc), cos = (kc, -ks, -kc, ks).
-    let odd = q & 1 != 0;
-    let (a, b) = if odd { (kc, ks) } else { (ks, kc) };
-    let sin = f64::from_bits(a.to_bits() ^ ((q & 2) << 62));
-    let cos = f64::from_bits(b.to_bits() ^ (((q + 1) & 2) << 62));
-    (sin, cos)
-}
-
-/// `sin` and `cos` of every lane; lanes outside the reduction's range (or not finite) take
-/// the scalar route.
-#[inline(always)]
-fn sin_cos(x: &Lane) -> (Lane, Lane) {
-    let (mut s, mut c) = ([0.0; LANES], [0.0; LANES]);
-    for i in 0..LANES {
-        (s[i], c[i]) = sin_cos_reduced(x[i]);
-    }
-    let mut outside = false;
-    for v in x {
-        outside |= !(v.abs() <= REDUCE_LIMIT);
-    }
-    if outside {
-        for i in 0..LANES {
-            if !(x[i].abs() <= REDUCE_LIMIT) {
-                (s[i], c[i]) = crate::trig::sin_cos(x[i]);
-            }
-        }
-    }
-    (s, c)
-}
-
-/// `sin` and `cos` of every entry of `x` into `s` and `c`, eight at a time on the AVX-512 or
-/// AVX2 path, for the O(N) recursion's angles (`Chain::trig`). Returns false, touching nothing,
-/// where neither path runs (the caller then takes glibc's scalar `sincos`): the portable path's
-/// `mul_add` would be a software FMA there.
-pub(crate) fn sin_cos_slice(x: &[f64], s: &mut [f64], c: &mut [f64]) -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        // SAFETY: each path runs only where the CPU has its features.
-        if Path::Avx512.available() {
-            unsafe { sin_cos_slice_avx512(x, s, c) };
-            return true;
-        }
-        if Path::Avx2.available() {
-            unsafe { sin_cos_slice_avx2(x, s, c) };
-            return true;
-        }
-    }
-    let _ = (x, s, c);
-    false
-}
-
-#[cfg(target_arch = "x86_64")]
-#[inline(always)]
-fn sin_cos_chunks(x: &[f64], s: &mut [f64], c: &mut [f64]) {
-    let n = x.len();
-    let mut i = 0;
-    while i < n {
-        let m = (n - i).min(LANES);
-        let mut lane = [0.0; LANES];
-        lane[..m].copy_from_slice(&x[i..i + m]);
-        let (ls, lc) = sin_cos(&lane);
-        s[i..i + m].copy_from_slice(&ls[..m]);
-        c[i..i + m].copy_from_slice(&lc[..m]);
-        i += m;
-    }
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,fma")]
-unsafe fn sin_cos_slice_avx512(x: &[f64], s: &mut [f64], c: &mut [f64]) {
-    sin_cos_chunks(x, s, c)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn sin_cos_slice_avx2(x: &[f64], s: &mut [f64], c: &mut [f64]) {
-    sin_cos_chunks(x, s, c)
 }
 
 /// `theta_ddot` of every lane, as `Chain::accelerations_double` with no torque; `det` receives
@@ -322,12 +151,12 @@ impl Lanes {
     /// Put the next row that has not already flipped (`out = 0` for those) into `lane`; when none
     /// is left the lane goes idle at rest, where it stays finite.
     #[inline(always)]
-    fn load(&mut self, lane: usize, theta0: &[f64], omega0: &[f64], watch: [bool; 2], out: &mut [f64]) {
+    fn load(&mut self, lane: usize, theta0: &[f64], omega0: &[f64], links: [bool; 2], out: &mut [f64]) {
         while self.next < out.len() {
             let j = self.next;
             self.next += 1;
             let (th, om) = (&theta0[2 * j..2 * j + 2], &omega0[2 * j..2 * j + 2]);
-            if (watch[0] && th[0].abs() >= PI) || (watch[1] && th[1].abs() >= PI) {
+            if (links[0] && th[0].abs() >= PI) || (links[1] && th[1].abs() >= PI) {
                 out[j] = 0.0;
                 continue;
             }
@@ -343,17 +172,22 @@ impl Lanes {
 }
 
 /// The run of one chunk: `out[j]` for the rows `theta0[2j..2j+2]`, `omega0[2j..2j+2]`.
-/// `watch[k]`: whether link `k` counts as a flip.
+/// `links[k]`: whether link `k` counts as a flip.
 #[inline(always)]
-fn run_chunk(c: &Coef, theta0: &[f64], omega0: &[f64], steps: u64, dt: f64, watch: [bool; 2], out: &mut [f64]) -> Result<()> {
+fn run_chunk(c: &Coef, theta0: &[f64], omega0: &[f64], steps: u64, dt: f64, links: [bool; 2], stop: &Watch, out: &mut [f64]) -> Result<()> {
     let mut lanes = Lanes { y: [[0.0; LANES]; 4], step: [0; LANES], id: [0; LANES], active: [false; LANES], next: 0 };
     let mut det = [0.0; LANES];
     let mut live = 0;
     for lane in 0..LANES {
-        lanes.load(lane, theta0, omega0, watch, out);
+        lanes.load(lane, theta0, omega0, links, out);
         live += usize::from(lanes.active[lane]);
     }
+    let mut rounds = 0u64;
     while live > 0 {
+        rounds += 1;
+        if rounds % 1024 == 0 {
+            stop.check(lanes.step[0] as f64 * dt)?;
+        }
         let y0 = lanes.y;
         if let Err(stage) = rk4_step(c, &mut lanes.y, dt, &lanes.active, &mut det) {
             let i = (0..LANES).find(|&i| lanes.active[i] && !(det[i] > c.tol)).unwrap_or(0);
@@ -365,7 +199,7 @@ fn run_chunk(c: &Coef, theta0: &[f64], omega0: &[f64], steps: u64, dt: f64, watc
         let mut event = false;
         for i in 0..LANES {
             lanes.step[i] += 1;
-            let flip = (watch[0] & (lanes.y[0][i].abs() >= PI)) | (watch[1] & (lanes.y[1][i].abs() >= PI));
+            let flip = (links[0] & (lanes.y[0][i].abs() >= PI)) | (links[1] & (lanes.y[1][i].abs() >= PI));
             event |= lanes.active[i] & (flip | (lanes.step[i] >= steps));
         }
         if !event {
@@ -376,8 +210,8 @@ fn run_chunk(c: &Coef, theta0: &[f64], omega0: &[f64], steps: u64, dt: f64, watc
                 continue;
             }
             let t = (lanes.step[i] - 1) as f64 * dt;
-            let k = if watch[0] && lanes.y[0][i].abs() >= PI { 0 } else { 1 };
-            if watch[k] && lanes.y[k][i].abs() >= PI {
+            let k = if links[0] && lanes.y[0][i].abs() >= PI { 0 } else { 1 };
+            if links[k] && lanes.y[k][i].abs() >= PI {
                 // On the step's cubic Hermite interpolant (theta' = omega), as the scalar path.
                 out[lanes.id[i]] = flip_time(t, dt, (y0[k][i], y0[2 + k][i]), (lanes.y[k][i], lanes.y[2 + k][i]));
             } else if lanes.step[i] >= steps {
@@ -388,7 +222,7 @@ fn run_chunk(c: &Coef, theta0: &[f64], omega0: &[f64], steps: u64, dt: f64, watc
             } else {
                 continue;
             }
-            lanes.load(i, theta0, omega0, watch, out);
+            lanes.load(i, theta0, omega0, links, out);
             live -= usize::from(!lanes.active[i]);
         }
     }
@@ -397,31 +231,32 @@ fn run_chunk(c: &Coef, theta0: &[f64], omega0: &[f64], steps: u64, dt: f64, watc
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,fma")]
-unsafe fn run_chunk_avx512(c: &Coef, th: &[f64], om: &[f64], steps: u64, dt: f64, watch: [bool; 2], out: &mut [f64]) -> Result<()> {
-    run_chunk(c, th, om, steps, dt, watch, out)
+unsafe fn run_chunk_avx512(c: &Coef, th: &[f64], om: &[f64], steps: u64, dt: f64, links: [bool; 2], stop: &Watch, out: &mut [f64]) -> Result<()> {
+    run_chunk(c, th, om, steps, dt, links, stop, out)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-unsafe fn run_chunk_avx2(c: &Coef, th: &[f64], om: &[f64], steps: u64, dt: f64, watch: [bool; 2], out: &mut [f64]) -> Result<()> {
-    run_chunk(c, th, om, steps, dt, watch, out)
+unsafe fn run_chunk_avx2(c: &Coef, th: &[f64], om: &[f64], steps: u64, dt: f64, links: [bool; 2], stop: &Watch, out: &mut [f64]) -> Result<()> {
+    run_chunk(c, th, om, steps, dt, links, stop, out)
 }
 
-fn run_chunk_on(path: Path, c: &Coef, th: &[f64], om: &[f64], steps: u64, dt: f64, watch: [bool; 2], out: &mut [f64]) -> Result<()> {
+fn run_chunk_on(path: Path, c: &Coef, th: &[f64], om: &[f64], steps: u64, dt: f64, links: [bool; 2], stop: &Watch, out: &mut [f64]) -> Result<()> {
     assert!(path.available(), "the {} kernel needs a CPU feature this one lacks", path.name());
     match path {
         // SAFETY: the CPU has the feature (checked just above).
         #[cfg(target_arch = "x86_64")]
-        Path::Avx512 => unsafe { run_chunk_avx512(c, th, om, steps, dt, watch, out) },
+        Path::Avx512 => unsafe { run_chunk_avx512(c, th, om, steps, dt, links, stop, out) },
         #[cfg(target_arch = "x86_64")]
-        Path::Avx2 => unsafe { run_chunk_avx2(c, th, om, steps, dt, watch, out) },
-        _ => run_chunk(c, th, om, steps, dt, watch, out),
+        Path::Avx2 => unsafe { run_chunk_avx2(c, th, om, steps, dt, links, stop, out) },
+        _ => run_chunk(c, th, om, steps, dt, links, stop, out),
     }
 }
 
 /// First-flip times of the undriven double pendulum `chain` (N = 2) for the rows of `theta0`,
 /// `omega0` (flat, `(B, 2)`), with `steps` rk4 steps of `dt` (`t = step * dt`) and the same rules
 /// as `chaos::first_flips`, which validates the input and calls this. `link`: `None` for either.
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn first_flips_double(
     chain: &Chain,
     theta0: &[f64],
@@ -430,16 +265,19 @@ pub(crate) fn first_flips_double(
     dt: f64,
     link: Option<usize>,
     path: Path,
+    stop: &Watch,
 ) -> Result<Vec<f64>> {
     debug_assert_eq!(chain.n(), 2);
     let c = Coef::new(chain);
-    let watch = [link != Some(1), link != Some(0)];
+    let links = [link != Some(1), link != Some(0)];
     let parts: Vec<Vec<f64>> = theta0
         .par_chunks(2 * CHUNK)
         .zip(omega0.par_chunks(2 * CHUNK))
         .map(|(th, om)| {
             let mut out = vec![0.0; th.len() / 2];
-            run_chunk_on(path, &c, th, om, steps, dt, watch, &mut out)?;
+            stop.check(0.0)?;
+            run_chunk_on(path, &c, th, om, steps, dt, links, stop, &mut out)?;
+            stop.add_units(out.len() as u64);
             Ok(out)
         })
         .collect::<Result<_>>()?;
@@ -484,56 +322,13 @@ unsafe fn avx512_call(f: &mut impl FnMut(&mut [Lane; 4]), y: &mut [Lane; 4]) {
 mod tests {
     use super::*;
     use crate::chaos::first_flips_scalar;
-    use crate::integrators::{FixedStep, Rk4};
-    use crate::system::{ChainSystem, Form};
-    use crate::torque::Builtin;
+    use crate::dynamics::system::{ChainSystem, Form};
+    use crate::dynamics::torque::Builtin;
+    use crate::integrators::Rk4;
+    use crate::trig::lanes::tests::cpu_flags_have;
 
-    fn ulps(a: f64, b: f64) -> u64 {
-        let key = |x: f64| {
-            let i = x.to_bits() as i64;
-            if i < 0 { i64::MIN - i } else { i }
-        };
-        key(a).abs_diff(key(b))
-    }
-
-    #[test]
-    fn the_slice_route_for_long_chains_equals_the_lanes_at_any_length() {
-        // Lengths that leave every remainder 0..7 of the eight-wide chunks, with far-out lanes.
-        for n in [1usize, 7, 8, 9, 15, 16, 23, 100] {
-            let x: Vec<f64> = (0..n).map(|i| (i as f64 * 0.731 - 3.0) * if i % 11 == 5 { 1e6 } else { 1.0 }).collect();
-            let (mut s, mut c) = (vec![0.0; n], vec![0.0; n]);
-            if !sin_cos_slice(&x, &mut s, &mut c) {
-                return; // no AVX2 + FMA here: Chain::trig takes glibc's route
-            }
-            for i in 0..n {
-                let mut lane = [0.0; LANES];
-                lane[0] = x[i];
-                let (ls, lc) = sin_cos(&lane);
-                assert_eq!((s[i].to_bits(), c[i].to_bits()), (ls[0].to_bits(), lc[0].to_bits()), "n = {n}, x = {}", x[i]);
-                let (gs, gc) = crate::trig::sin_cos(x[i]);
-                assert!(ulps(s[i], gs) <= 1 && ulps(c[i], gc) <= 1, "x = {}", x[i]);
-            }
-        }
-    }
-
-    #[test]
-    fn sin_cos_is_within_one_ulp_of_glibc_and_falls_back_far_out() {
-        let mut worst = 0;
-        let mut xs: Vec<f64> = (0..200_001).map(|i| (i as f64 - 100_000.0) * 1.37e-4).collect();
-        xs.extend((0..20_000).map(|i| (i as f64 - 10_000.0) * 9.3)); // |x| up to 9.3e4
-        xs.extend([0.0, -0.0, 1e-300, 5e-324, PI, -PI, 0.5 * PI, 1e5, 1.5e5, 1e300, -3e22]);
-        for chunk in xs.chunks(LANES) {
-            let mut x = [0.0; LANES];
-            x[..chunk.len()].copy_from_slice(chunk);
-            let (s, c) = sin_cos(&x);
-            for i in 0..chunk.len() {
-                let (es, ec) = crate::trig::sin_cos(x[i]);
-                worst = worst.max(ulps(s[i], es)).max(ulps(c[i], ec));
-            }
-        }
-        assert!(worst <= 1, "worst error {worst} ulp");
-        let (s, c) = sin_cos(&[f64::NAN, f64::INFINITY, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
-        assert!(s[0].is_nan() && c[0].is_nan() && s[1].is_nan() && c[1].is_nan());
+    fn go() -> Watch {
+        Watch::new()
     }
 
     fn chains() -> Vec<Chain> {
@@ -569,7 +364,8 @@ mod tests {
             for (j, got) in lanes.iter().enumerate() {
                 let mut y = [th[2 * j], th[2 * j + 1], om[2 * j], om[2 * j + 1]];
                 for s in 0..steps {
-                    rk.step(&mut sys, s as f64 * dt, &mut y, dt).unwrap();
+                    let before = y;
+                    rk.step(&mut sys, s as f64 * dt, &before, dt, &mut y).unwrap();
                 }
                 for m in 0..4 {
                     assert!((got[m] - y[m]).abs() < 1e-12, "row {j}, entry {m}: {} vs {}", got[m], y[m]);
@@ -582,10 +378,12 @@ mod tests {
     fn every_path_gives_the_same_bits() {
         let (th, om) = inputs(100, 9);
         for chain in chains() {
-            let reference = first_flips_double(&chain, &th, &om, 800, 0.01, None, Path::Portable).unwrap();
+            let reference = first_flips_double(&chain, &th, &om, 800, 0.01, None, Path::Portable, &go()).unwrap();
             let states = advance(&chain, &th, &om, 500, 0.01, Path::Portable);
+            let mut ran = Vec::new();
             for path in Path::ALL.into_iter().filter(|p| p.available() && *p != Path::Portable) {
-                let got = first_flips_double(&chain, &th, &om, 800, 0.01, None, path).unwrap();
+                ran.push(path);
+                let got = first_flips_double(&chain, &th, &om, 800, 0.01, None, path, &go()).unwrap();
                 assert!(got.iter().zip(&reference).all(|(a, b)| a.to_bits() == b.to_bits()), "{path:?}");
                 if path == Path::Avx512 {
                     let s = advance(&chain, &th, &om, 500, 0.01, path);
@@ -593,6 +391,9 @@ mod tests {
                 }
             }
             assert!(reference.iter().any(|t| t.is_finite()) && reference.iter().any(|t| t.is_infinite()));
+            // Not the portable path compared with itself where the CPU has a wider one.
+            assert_eq!(ran.contains(&Path::Avx2), cpu_flags_have(&["avx2", "fma"]), "paths compared: {ran:?}");
+            assert_eq!(ran.contains(&Path::Avx512), cpu_flags_have(&["avx512f", "fma"]), "paths compared: {ran:?}");
         }
     }
 
@@ -609,8 +410,8 @@ mod tests {
                     }
                 }
                 let steps = 400;
-                let fast = first_flips_double(&chain, &th, &om, steps, 0.01, link, Path::best()).unwrap();
-                let slow = first_flips_scalar(&chain, &th, &om, 4.0, 0.01, link, &Builtin::None).unwrap();
+                let fast = first_flips_double(&chain, &th, &om, steps, 0.01, link, Path::best(), &go()).unwrap();
+                let slow = first_flips_scalar(&chain, &th, &om, 4.0, 0.01, link, &Builtin::None, &go()).unwrap();
                 let same = fast.iter().zip(&slow).filter(|(a, b)| a.is_finite() == b.is_finite()).count();
                 assert!(same as f64 >= 0.99 * fast.len() as f64, "{same} of {}", fast.len());
                 let early: Vec<_> = fast.iter().zip(&slow).filter(|(a, b)| **a < 2.0 && **b < 2.0).collect();
@@ -628,7 +429,7 @@ mod tests {
     #[test]
     fn a_blow_up_is_an_integration_error_not_a_silent_value() {
         let chain = Chain::new(&[1.0, 1.0], &[1.0, 1.0], None, None, 9.81).unwrap();
-        let e = first_flips_double(&chain, &[0.1, 0.1, 0.2, 0.2], &[0.0, 0.0, 1e200, 0.0], 100, 0.01, None, Path::best())
+        let e = first_flips_double(&chain, &[0.1, 0.1, 0.2, 0.2], &[0.0, 0.0, 1e200, 0.0], 100, 0.01, None, Path::best(), &go())
             .unwrap_err();
         assert!(matches!(e, Error::Integration { .. }), "{e}");
         assert!(e.to_string().contains("non-finite"), "{e}");

@@ -1,6 +1,8 @@
 //! `sin` and `cos` of one angle in one call. glibc's `sincos` shares the argument reduction
 //! (what C compilers emit for `sin(x)` beside `cos(x)`; LLVM does so only sometimes), and its
 //! results equal `sin` and `cos` bit for bit. Elsewhere (e.g. WebAssembly), Rust's own pair.
+//! [`lanes`]: the vectorised pair, eight angles at a time.
+pub mod lanes;
 
 #[cfg(all(target_os = "linux", target_env = "gnu"))]
 #[inline(always)]

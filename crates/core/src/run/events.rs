@@ -5,7 +5,7 @@
 use crate::dynamics::Workspace;
 use crate::error::{Error, Result};
 use crate::model::Chain;
-use crate::system::Form;
+use crate::dynamics::system::Form;
 use std::sync::Arc;
 
 /// A user's event function `g(t, theta, omega)` (e.g. written in Python by the bindings).

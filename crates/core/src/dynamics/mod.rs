@@ -10,6 +10,10 @@
 //! Lagrangian form: `A(theta) theta_ddot = tau - g h sin(theta) - sum_b K_ab sin(theta_a - theta_b) omega_b^2`.
 //! Hamiltonian form: `theta_dot = A^-1 p`,
 //! `p_dot_a = tau_a - g h_a sin(theta_a) - omega_a sum_b K_ab sin(theta_a - theta_b) omega_b`.
+pub mod reference;
+pub mod system;
+pub mod torque;
+
 use crate::model::Chain;
 use crate::trig::sin_cos;
 
@@ -49,7 +53,7 @@ impl Chain {
     fn trig(&self, theta: &[f64], ws: &mut Workspace) {
         let n = theta.len();
         // Long chains: eight angles at a time where the CPU has AVX2 + FMA (within 1 ulp of glibc).
-        if n >= TRIG_VECTOR_MIN && crate::flipkernel::sin_cos_slice(theta, &mut ws.sin[..n], &mut ws.cos[..n]) {
+        if n >= TRIG_VECTOR_MIN && crate::trig::lanes::sin_cos_slice(theta, &mut ws.sin[..n], &mut ws.cos[..n]) {
             return;
         }
         for ((t, s), c) in theta.iter().zip(&mut ws.sin[..n]).zip(&mut ws.cos[..n]) {

@@ -1,0 +1,244 @@
+//! A run shown as it happens (the browser viewer advances one frame at a time; an environment
+//! one action at a time): a [`Run`] of an owned chain, with the energy balance of its frames.
+//! It keeps no history. The time grid is the driver's (see [`super::driver`]): the fixed-step
+//! methods take whole steps of the grid `t_k = k dt`, so the run is the same however it is cut
+//! into pieces, and a target between grid points is reached to within one step; `dop853` lands
+//! on each target exactly.
+use super::driver::Run;
+use super::energy::EnergyBalance;
+use super::simulate::{fill_rates, Settings};
+use crate::dynamics::system::{ChainSystem, Form, OdeSystem};
+use crate::dynamics::torque::TorqueSource;
+use crate::dynamics::Workspace;
+use crate::error::{Error, Result};
+use crate::integrators::Method;
+use crate::model::Chain;
+
+/// A chain, its current state and its integrator, advanced on request.
+pub struct Stepper<T> {
+    run: Run<ChainSystem<Chain, T>>,
+    form: Form,
+    balance: EnergyBalance,
+    ws: Workspace,
+    omega: Vec<f64>,
+    p: Vec<f64>,
+    scratch: Vec<f64>,
+}
+
+impl<T: TorqueSource> Stepper<T> {
+    /// Start at t = 0 from `(theta0, omega0)`. `settings.t_eval` and `max_steps` are not used;
+    /// `dt` is required by the fixed-step methods and is the first step of `dop853` if given.
+    pub fn new(chain: Chain, theta0: &[f64], omega0: &[f64], settings: &Settings, torque: T) -> Result<Self> {
+        chain.check_state("theta0", theta0)?;
+        chain.check_state("omega0", omega0)?;
+        // The run has no end; any t_end checks the step and tolerance settings the same way.
+        let mut checked = settings.clone();
+        checked.t_eval = None;
+        checked.validate(f64::MAX)?;
+        let form = settings.resolved_form()?;
+        let n = chain.n();
+        let mut ws = Workspace::new(n);
+        let mut scratch = vec![0.0; n];
+        let balance = EnergyBalance::new(&chain, chain.kinetic_energy(theta0, omega0, &mut scratch, &mut ws), chain.potential_energy(theta0));
+        let sys = ChainSystem::new(chain, torque, form);
+        let mut y = vec![0.0; sys.dim()];
+        y[..n].copy_from_slice(theta0);
+        match form {
+            Form::Lagrangian => y[n..2 * n].copy_from_slice(omega0),
+            Form::Hamiltonian => sys.chain().momenta_into(theta0, omega0, &mut y[n..2 * n], &mut ws),
+        }
+        let config = crate::run::driver::Config { max_steps: u64::MAX, ..settings.config(None) };
+        let run = Run::new(sys, y, &config)?;
+        Ok(Stepper { run, form, balance, ws, omega: omega0.to_vec(), p: vec![0.0; n], scratch })
+    }
+
+    /// Advance towards `t_target`, taking at most `max_steps` accepted steps. Returns `true` once
+    /// the target is reached (for fixed-step methods: when one more step would pass it),
+    /// `false` if the step budget ran out first. After an error the state is the last good one and
+    /// every later call returns the same error.
+    pub fn advance(&mut self, t_target: f64, max_steps: u64) -> Result<bool> {
+        self.run.advance_to(t_target, max_steps)
+    }
+
+    pub fn t(&self) -> f64 {
+        self.run.t()
+    }
+    pub fn n(&self) -> usize {
+        self.chain().n()
+    }
+    pub fn chain(&self) -> &Chain {
+        self.run.system().chain()
+    }
+    pub fn method(&self) -> Method {
+        self.run.method()
+    }
+    pub fn form(&self) -> Form {
+        self.form
+    }
+    /// Accepted steps, rejected attempts (dop853) and right-hand side evaluations so far.
+    pub fn counts(&self) -> (u64, u64, u64) {
+        let s = self.run.state();
+        (s.steps, s.rejected, s.evaluations)
+    }
+    pub fn theta(&self) -> &[f64] {
+        &self.run.y()[..self.n()]
+    }
+
+    /// Angular velocities of the current state (solved from `p` in the Hamiltonian form).
+    pub fn omega(&mut self) -> &[f64] {
+        let Stepper { run, form, ws, omega, p, .. } = self;
+        fill_rates(run.system().chain(), *form, run.y(), omega, p, ws);
+        &self.omega
+    }
+
+    fn kinetic(&mut self) -> f64 {
+        self.omega();
+        let n = self.n();
+        let chain = self.run.system().chain();
+        chain.kinetic_energy(&self.run.y()[..n], &self.omega, &mut self.scratch, &mut self.ws)
+    }
+
+    /// Energy `T + U` of the current state.
+    pub fn energy(&mut self) -> f64 {
+        let kinetic = self.kinetic();
+        kinetic + self.chain().potential_energy(self.theta())
+    }
+
+    pub fn initial_energy(&self) -> f64 {
+        self.balance.initial_energy()
+    }
+
+    /// Work done by the torque since t = 0 (zero without one).
+    pub fn work(&self) -> f64 {
+        self.run.y().get(2 * self.n()).copied().unwrap_or(0.0)
+    }
+
+    /// The energy error of the current state as [`super::energy`] defines it, this state
+    /// counting as an output (its kinetic energy joins the scale).
+    pub fn energy_error(&mut self) -> f64 {
+        let kinetic = self.kinetic();
+        let energy = kinetic + self.chain().potential_energy(self.theta());
+        let work = self.work();
+        self.balance.observe(kinetic, energy, work)
+    }
+
+    /// Joint positions of the current state, `2N` values (x then y of each link's far end).
+    pub fn positions_into(&self, out: &mut [f64]) {
+        self.chain().positions_into(self.theta(), out);
+    }
+
+    /// The error that stopped the run, if any.
+    pub fn failure(&self) -> Option<&Error> {
+        self.run.failure()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::dynamics::torque::Builtin;
+    use crate::run::simulate::simulate;
+
+    fn settings(method: &str, dt: Option<f64>) -> Settings {
+        Settings { method: Method::parse(method).unwrap(), dt, ..Settings::default() }
+    }
+
+    fn double() -> Chain {
+        Chain::new(&[1.0, 1.0], &[1.0, 1.0], None, None, 9.81).unwrap()
+    }
+
+    #[test]
+    fn fixed_steps_match_simulate_and_do_not_depend_on_the_pieces() {
+        let theta0 = [2.0, 2.5];
+        for method in ["rk4", "gauss6"] {
+            let s = settings(method, Some(0.01));
+            let mut whole = Stepper::new(double(), &theta0, &[0.0; 2], &s, Builtin::None).unwrap();
+            assert!(whole.advance(1.0, u64::MAX).unwrap());
+            let mut pieces = Stepper::new(double(), &theta0, &[0.0; 2], &s, Builtin::None).unwrap();
+            let mut target = 0.0f64;
+            while target < 1.0 {
+                target += 1.0 / 60.0;
+                pieces.advance(target.min(1.0), u64::MAX).unwrap();
+            }
+            assert_eq!(whole.t(), 100.0 * 0.01);
+            assert_eq!(pieces.t(), whole.t());
+            assert_eq!(pieces.theta(), whole.theta(), "{method}: bit for bit whatever the pieces");
+            // One time grid: the frame-by-frame run is simulate's to t_end, bit for bit.
+            let reference = simulate(&double(), &theta0, &[0.0; 2], 1.0, &s, Builtin::None, &mut |_| Ok(())).unwrap();
+            let last = reference.theta.len() - 2;
+            assert_eq!(whole.theta(), &reference.theta[last..], "{method}");
+            assert_eq!(whole.energy(), reference.energy[reference.energy.len() - 1]);
+            assert_eq!(whole.initial_energy(), reference.energy[0]);
+        }
+    }
+
+    #[test]
+    fn one_rk4_step_equals_simulate_bit_for_bit() {
+        let chain = Chain::rods(&[1.0, 0.7, 0.5], &[1.0, 2.0, 0.5], 9.81).unwrap();
+        let (theta0, omega0) = ([0.3, -1.2, 2.0], [0.5, 0.0, -1.0]);
+        let s = Settings { t_eval: Some(vec![0.01]), ..settings("rk4", Some(0.01)) };
+        let mut st = Stepper::new(chain.clone(), &theta0, &omega0, &s, Builtin::None).unwrap();
+        st.advance(0.01, 1).unwrap();
+        let r = simulate(&chain, &theta0, &omega0, 0.01, &s, Builtin::None, &mut |_| Ok(())).unwrap();
+        assert_eq!(st.theta(), &r.theta[..]);
+        assert_eq!(st.omega(), &r.omega[..]);
+        assert_eq!(st.energy(), r.energy[0]);
+    }
+
+    #[test]
+    fn dop853_lands_on_each_target_and_keeps_its_tolerance() {
+        let s = Settings { rtol: 1e-11, atol: 1e-13, ..settings("dop853", None) };
+        // A regular (not chaotic) start, so the tolerance bounds the difference at the end.
+        let theta0 = [1.0, 0.5];
+        let mut st = Stepper::new(double(), &theta0, &[0.0; 2], &s, Builtin::None).unwrap();
+        for frame in 1..=600 {
+            let target = frame as f64 / 60.0;
+            assert!(st.advance(target, u64::MAX).unwrap());
+            assert_eq!(st.t(), target);
+        }
+        let reference = Settings { rtol: 1e-13, atol: 1e-15, t_eval: Some(vec![st.t()]), ..settings("dop853", None) };
+        let r = simulate(&double(), &theta0, &[0.0; 2], st.t(), &reference, Builtin::None, &mut |_| Ok(())).unwrap();
+        for i in 0..2 {
+            let d = (st.theta()[i] - r.theta[i]).abs();
+            assert!(d < 1e-8, "theta[{i}] differs by {d} after 10 s");
+        }
+        assert!(st.energy_error() < 1e-9, "{}", st.energy_error());
+    }
+
+    #[test]
+    fn the_step_budget_stops_early_and_resumes() {
+        let s = settings("rk4", Some(0.01));
+        let mut st = Stepper::new(double(), &[1.0, 0.0], &[0.0; 2], &s, Builtin::None).unwrap();
+        assert!(!st.advance(1.0, 10).unwrap());
+        assert_eq!(st.counts().0, 10);
+        assert!((st.t() - 0.1).abs() < 1e-15);
+        assert!(st.advance(f64::INFINITY, 1).is_ok_and(|done| !done));
+        assert!(st.advance(0.005, 5).unwrap(), "a target already passed is reached");
+        assert_eq!(st.counts().0, 11);
+    }
+
+    #[test]
+    fn bad_settings_and_states_are_refused() {
+        let e = Stepper::new(double(), &[1.0, 0.0], &[0.0; 2], &settings("rk4", None), Builtin::None).err().unwrap();
+        assert_eq!(e.to_string(), "method rk4 takes a fixed step: give dt");
+        let e = Stepper::new(double(), &[1.0, 0.0], &[0.0; 2], &settings("rk4", Some(-1.0)), Builtin::None).err().unwrap();
+        assert_eq!(e.to_string(), "dt must be > 0 and finite, got -1");
+        let e = Stepper::new(double(), &[f64::NAN, 0.0], &[0.0; 2], &settings("rk4", Some(0.01)), Builtin::None).err().unwrap();
+        assert_eq!(e.to_string(), "theta0[0] must be finite, got NaN");
+        let mut st = Stepper::new(double(), &[1.0, 0.0], &[0.0; 2], &settings("rk4", Some(0.01)), Builtin::None).unwrap();
+        assert!(st.advance(f64::NAN, 1).is_err());
+    }
+
+    #[test]
+    fn a_failed_run_keeps_its_last_good_state() {
+        // gauss6 with a huge step on a fast chain: the stage equations do not converge.
+        let s = settings("gauss6", Some(2.0));
+        let mut st = Stepper::new(double(), &[2.0, 2.5], &[10.0, -10.0], &s, Builtin::None).unwrap();
+        let e = st.advance(100.0, u64::MAX).unwrap_err();
+        assert!(matches!(e, Error::Integration { .. }), "{e}");
+        assert!(st.theta().iter().all(|v| v.is_finite()));
+        assert!(st.energy().is_finite());
+        assert_eq!(st.advance(200.0, 1).unwrap_err(), e);
+        assert_eq!(st.failure(), Some(&e));
+    }
+}

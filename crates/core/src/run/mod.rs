@@ -1,0 +1,11 @@
+//! Runs: the driver ([`driver::Run`]) that every integration goes through, and its clients:
+//! [`simulate`] (outputs, events, checkpoints, batches) and [`live::Stepper`] (frame by frame).
+//! [`energy`] defines the energy error every report uses.
+pub mod driver;
+pub mod energy;
+pub mod events;
+pub mod live;
+pub mod simulate;
+
+pub use driver::{Config, Run, State};
+pub use simulate::{defaults, simulate, simulate_batch, simulate_from, Checkpoint, Checkpoints, Monitor, Settings, Start, Stats, Trajectory};

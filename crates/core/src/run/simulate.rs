@@ -1,0 +1,713 @@
+//! One run from an initial state to `t_end` through the run driver ([`super::Run`]):
+//! validation, output at every step or at the requested times (dense output), events,
+//! checkpoints, and the derived quantities (momenta or velocities, energy, work, the energy
+//! error of [`super::energy`]).
+use serde::{Deserialize, Serialize};
+
+use super::driver::{fixed_steps, Config, Run, State};
+use super::energy::EnergyBalance;
+use super::events::{EventSpec, Hit, Tracker};
+use crate::dynamics::system::{ChainSystem, Form, OdeSystem};
+use crate::dynamics::torque::TorqueSource;
+use crate::dynamics::Workspace;
+use crate::error::{Error, Result};
+use crate::integrators::Method;
+use crate::model::Chain;
+use crate::par::*;
+use crate::watch::Watch;
+
+pub use crate::memory::MAX_OUTPUT_BYTES;
+
+#[derive(Debug, Clone)]
+pub struct Settings {
+    pub method: Method,
+    /// `None`: Lagrangian for rk4/dop853, Hamiltonian for the Gauss methods (which require it).
+    pub form: Option<Form>,
+    /// Step size of the fixed-step methods; the first step of dop853 (and its only step size
+    /// when `adaptive` is false).
+    pub dt: Option<f64>,
+    pub rtol: f64,
+    pub atol: f64,
+    pub adaptive: bool,
+    /// Output times (ascending, within `[0, t_end]`); `None`: every step.
+    pub t_eval: Option<Vec<f64>>,
+    pub max_steps: u64,
+    /// Conditions whose zero crossings are recorded, or stop the run (terminal).
+    pub events: Vec<EventSpec>,
+}
+
+/// The defaults of a run, stated once (Python, the CLI, scenario files and the viewer read them).
+pub mod defaults {
+    pub const METHOD: super::Method = super::Method::Dop853;
+    pub const RTOL: f64 = 1e-10;
+    pub const ATOL: f64 = 1e-12;
+    /// The smallest rtol the adaptive method accepts (below it round-off dominates the estimate).
+    pub const MIN_RTOL: f64 = 1e-15;
+    pub const MAX_STEPS: u64 = 100_000_000;
+}
+
+impl Default for Settings {
+    fn default() -> Self {
+        Settings {
+            method: defaults::METHOD,
+            form: None,
+            dt: None,
+            rtol: defaults::RTOL,
+            atol: defaults::ATOL,
+            adaptive: true,
+            t_eval: None,
+            max_steps: defaults::MAX_STEPS,
+            events: Vec::new(),
+        }
+    }
+}
+
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Stats {
+    pub steps: u64,
+    pub rejected: u64,
+    pub evaluations: u64,
+    /// Fixed-point iterations of the implicit methods.
+    pub iterations: u64,
+    /// The largest energy error over the outputs ([`super::energy`]).
+    pub energy_error: f64,
+}
+
+/// A run's output: `T` output times, row-major `(T, N)` arrays.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Trajectory {
+    pub n: usize,
+    pub t: Vec<f64>,
+    pub theta: Vec<f64>,
+    pub omega: Vec<f64>,
+    pub p: Vec<f64>,
+    pub energy: Vec<f64>,
+    pub work: Vec<f64>,
+    /// The energy error of each output ([`super::energy`]).
+    pub energy_error: Vec<f64>,
+    pub stats: Stats,
+    pub form: Form,
+    /// Event crossings in time order: `(event index, t, theta, omega, p)`.
+    pub events: Vec<(usize, f64, Vec<f64>, Vec<f64>, Vec<f64>)>,
+    /// The time a terminal event stopped the run, if one did.
+    pub stopped_at: Option<f64>,
+}
+
+impl Settings {
+    pub fn resolved_form(&self) -> Result<Form> {
+        match (self.method.symplectic(), self.form) {
+            (true, Some(Form::Lagrangian)) => Err(Error::input(format!(
+                "method {} integrates Hamilton's equations; form must be \"hamiltonian\", got \"lagrangian\"",
+                self.method.name()
+            ))),
+            (true, _) => Ok(Form::Hamiltonian),
+            (false, f) => Ok(f.unwrap_or(Form::Lagrangian)),
+        }
+    }
+
+    /// The driver's configuration of a run to `t_end` (`None`: a run without an end).
+    pub fn config(&self, t_end: Option<f64>) -> Config {
+        Config {
+            method: self.method,
+            dt: self.dt,
+            rtol: self.rtol,
+            atol: self.atol,
+            adaptive: self.adaptive,
+            t_end,
+            max_steps: self.max_steps,
+        }
+    }
+
+    /// Check the settings for a run to `t_end`; returns the number of output rows.
+    pub fn validate(&self, t_end: f64) -> Result<usize> {
+        if !(t_end.is_finite() && t_end > 0.0) {
+            return Err(Error::input(format!("t_end must be > 0 and finite, got {t_end}")));
+        }
+        if let Some(dt) = self.dt {
+            if !(dt.is_finite() && dt > 0.0) {
+                return Err(Error::input(format!("dt must be > 0 and finite, got {dt}")));
+            }
+        } else if !self.method.adaptive() || !self.adaptive {
+            return Err(Error::input(format!("method {} takes a fixed step: give dt", self.method.name())));
+        }
+        if self.method.adaptive() {
+            if !(self.rtol.is_finite() && self.rtol >= defaults::MIN_RTOL) {
+                return Err(Error::input(format!("rtol must be >= {:e} and finite, got {}", defaults::MIN_RTOL, self.rtol)));
+            }
+            if !(self.atol.is_finite() && self.atol >= 0.0) {
+                return Err(Error::input(format!("atol must be >= 0 and finite, got {}", self.atol)));
+            }
+        }
+        self.resolved_form()?;
+        let rows = match &self.t_eval {
+            Some(te) => {
+                for (i, &v) in te.iter().enumerate() {
+                    if !(v.is_finite() && (0.0..=t_end).contains(&v)) {
+                        return Err(Error::input(format!("t_eval[{i}] must lie in [0, t_end = {t_end}], got {v}")));
+                    }
+                    if i > 0 && v < te[i - 1] {
+                        return Err(Error::input(format!(
+                            "t_eval must be ascending: t_eval[{i}] = {v} < t_eval[{}] = {}",
+                            i - 1,
+                            te[i - 1]
+                        )));
+                    }
+                }
+                te.len() as f64
+            }
+            None if !self.method.adaptive() || !self.adaptive => fixed_steps(t_end, self.dt.unwrap()) as f64 + 1.0,
+            None => 0.0, // unknown in advance; bounded by max_steps
+        };
+        Ok(rows as usize)
+    }
+}
+
+/// Refuse, before allocating, an output of `rows` rows (all trajectories) that would not fit.
+fn check_output_size(rows: f64, n: usize) -> Result<()> {
+    crate::memory::check(
+        rows * crate::memory::row_bytes(n),
+        &format!("storing {rows:.0} output points of {n} links"),
+        "ask for fewer with t_eval (e.g. 10^4 points), a larger dt or fewer trajectories",
+    )
+}
+
+/// A fixed-step run's length is known: refuse one beyond `max_steps` before it starts (with a
+/// huge `t_end / dt` and `t_eval` it would otherwise run for ever).
+fn check_fixed_steps(settings: &Settings, t_end: f64) -> Result<()> {
+    match settings.dt {
+        Some(dt) if !settings.method.adaptive() || !settings.adaptive => {
+            let steps = fixed_steps(t_end, dt);
+            if steps > settings.max_steps {
+                return Err(Error::input(format!(
+                    "{} with dt = {dt} takes {:.3e} steps to reach t_end = {t_end:e}, more than max_steps = {}; \
+                     use a larger dt or a shorter t_end (or raise max_steps)",
+                    settings.method.name(),
+                    steps as f64,
+                    settings.max_steps
+                )));
+            }
+            Ok(())
+        }
+        _ => Ok(()),
+    }
+}
+
+/// Output rows of the raw ODE state `y`.
+#[derive(Debug, Clone, Default)]
+struct Recorder {
+    t: Vec<f64>,
+    y: Vec<f64>,
+    /// How many of `t_eval` the rows cover.
+    next_out: usize,
+    stopped_at: Option<f64>,
+}
+
+impl Recorder {
+    /// A row from an interpolant: a step's ends are checked for blow-up, but its dense output
+    /// can still overflow between them, and a NaN must never be returned as a result.
+    fn push_interpolated(&mut self, t: f64, y: &[f64]) -> Result<()> {
+        check_state_finite(t, y)?;
+        self.push(t, y);
+        Ok(())
+    }
+
+    fn push(&mut self, t: f64, y: &[f64]) {
+        self.t.push(t);
+        self.y.extend_from_slice(y);
+    }
+}
+
+/// The complete state of a run between two steps: the driver's [`State`], the initial state
+/// (for the energy error) and the output so far. [`simulate_from`] started from it takes exactly
+/// the floating-point path the uninterrupted run took, so its result is bit-for-bit the same.
+/// Serialised whole ([`Checkpoint::to_bytes`]), so no part of it can be left out.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Checkpoint {
+    pub run: State,
+    /// The raw ODE state at t = 0.
+    pub initial: Vec<f64>,
+    /// The output rows so far: their times, and their raw states (row-major, `y.len()` each).
+    pub out_t: Vec<f64>,
+    pub out_y: Vec<f64>,
+    /// How many of `t_eval` the rows cover.
+    pub next_out: usize,
+}
+
+/// Leads every serialised checkpoint: a format name and its version.
+const CHECKPOINT_MAGIC: &[u8; 8] = b"mpckpt\x00\x02";
+
+impl Checkpoint {
+    /// The time reached.
+    pub fn t(&self) -> f64 {
+        self.run.t
+    }
+
+    pub fn to_bytes(&self) -> Vec<u8> {
+        let mut out = CHECKPOINT_MAGIC.to_vec();
+        // Serialising plain numbers and vectors into memory cannot fail.
+        out.extend(postcard::to_allocvec(self).unwrap_or_default());
+        out
+    }
+
+    pub fn from_bytes(bytes: &[u8]) -> Result<Self> {
+        let body = bytes.strip_prefix(CHECKPOINT_MAGIC.as_slice()).ok_or_else(|| {
+            Error::input("the checkpoint's run state is not of this format (another version, or damaged)")
+        })?;
+        postcard::from_bytes(body).map_err(|e| Error::input(format!("the checkpoint's run state cannot be read (damaged?): {e}")))
+    }
+}
+
+/// When a run takes checkpoints, and where they go. Checkpoints with events are refused (the
+/// event tracker's state is not part of a [`Checkpoint`]).
+pub struct Checkpoints<'a> {
+    /// Take one every this many steps (0: not by count).
+    pub every_steps: u64,
+    /// Asked every `MONITOR_EVERY` (64) steps: true to take one now (a wall clock, say).
+    pub due: &'a mut dyn FnMut() -> bool,
+    /// Receives each checkpoint, and a last one when the monitor stops the run (an interrupt).
+    /// An error stops the run.
+    pub save: &'a mut dyn FnMut(&Checkpoint) -> Result<()>,
+}
+
+/// Where a run starts: an initial state at t = 0, or a [`Checkpoint`] of the same run.
+#[derive(Debug, Clone, Copy)]
+pub enum Start<'a> {
+    Initial { theta0: &'a [f64], omega0: &'a [f64] },
+    Resume(&'a Checkpoint),
+}
+
+/// After each accepted step: a checkpoint when one is due; the monitor every `MONITOR_EVERY`
+/// steps, and when it stops the run, a last checkpoint before its error. `snapshot` is only
+/// called when a checkpoint is taken (it copies the output rows).
+fn after_step(
+    steps: u64,
+    t: f64,
+    monitor: Monitor,
+    checkpoints: &mut Option<&mut Checkpoints>,
+    snapshot: impl Fn() -> Checkpoint,
+) -> Result<()> {
+    let tick = steps % MONITOR_EVERY == 0;
+    let mut saved = false;
+    if let Some(cp) = checkpoints.as_deref_mut() {
+        if (cp.every_steps > 0 && steps % cp.every_steps == 0) || (tick && (cp.due)()) {
+            (cp.save)(&snapshot())?;
+            saved = true;
+        }
+    }
+    if tick {
+        if let Err(e) = monitor(t) {
+            if let (Some(cp), false) = (checkpoints.as_deref_mut(), saved) {
+                (cp.save)(&snapshot())?;
+            }
+            return Err(e);
+        }
+    }
+    Ok(())
+}
+
+/// Called now and then with the current time; an error (e.g. an interrupt) stops the run.
+pub type Monitor<'a> = &'a mut dyn FnMut(f64) -> Result<()>;
+
+/// How often (in steps) the monitor is called.
+pub const MONITOR_EVERY: u64 = 64;
+
+fn check_state_finite(t: f64, y: &[f64]) -> Result<()> {
+    if y.iter().all(|v| v.is_finite()) {
+        Ok(())
+    } else {
+        Err(Error::integration(t, crate::dynamics::system::NON_FINITE))
+    }
+}
+
+/// Integrate `chain` from `(theta0, omega0)` at t = 0 to `t_end`.
+pub fn simulate<T: TorqueSource>(
+    chain: &Chain,
+    theta0: &[f64],
+    omega0: &[f64],
+    t_end: f64,
+    settings: &Settings,
+    torque: T,
+    monitor: Monitor,
+) -> Result<Trajectory> {
+    simulate_from(chain, Start::Initial { theta0, omega0 }, t_end, settings, torque, monitor, None)
+}
+
+/// [`simulate`] from an initial state or from a [`Checkpoint`] of the same run (same chain,
+/// settings, torque and `t_end`), handing `checkpoints` the run's complete state now and then.
+/// A resumed run's trajectory is bit-for-bit the uninterrupted run's, stats included (but the
+/// wall time). Checkpoints and resuming are refused with events.
+#[allow(clippy::too_many_arguments)]
+pub fn simulate_from<T: TorqueSource>(
+    chain: &Chain,
+    start: Start,
+    t_end: f64,
+    settings: &Settings,
+    torque: T,
+    monitor: Monitor,
+    mut checkpoints: Option<&mut Checkpoints>,
+) -> Result<Trajectory> {
+    if let Start::Initial { theta0, omega0 } = start {
+        chain.check_state("theta0", theta0)?;
+        chain.check_state("omega0", omega0)?;
+    }
+    let rows = settings.validate(t_end)?;
+    check_output_size(rows as f64, chain.n())?;
+    check_fixed_steps(settings, t_end)?;
+    let form = settings.resolved_form()?;
+    let n = chain.n();
+    for e in &settings.events {
+        e.validate(n)?;
+    }
+    let resume = match start {
+        Start::Resume(cp) => Some(cp),
+        Start::Initial { .. } => None,
+    };
+    if !settings.events.is_empty() && (resume.is_some() || checkpoints.is_some()) {
+        return Err(Error::input("checkpoints cannot be combined with events (the event tracker's state is not saved)"));
+    }
+    let sys = ChainSystem::new(chain, torque, form);
+    let tracks_work = sys.tracks_work();
+    let d = sys.dim();
+    let config = settings.config(Some(t_end));
+    let t_eval = settings.t_eval.as_deref();
+    let mut tracker = Tracker::new(&settings.events, chain, form);
+    let (mut run, initial, mut rec) = match start {
+        Start::Initial { theta0, omega0 } => {
+            let mut y = vec![0.0; d];
+            y[..n].copy_from_slice(theta0);
+            match form {
+                Form::Lagrangian => y[n..2 * n].copy_from_slice(omega0),
+                Form::Hamiltonian => chain.momenta_into(theta0, omega0, &mut y[n..2 * n], &mut Workspace::new(n)),
+            }
+            tracker.start(0.0, &y)?;
+            let rows = t_eval.map_or(if settings.method.adaptive() { 0 } else { rows }, <[f64]>::len);
+            let rec = Recorder { t: Vec::with_capacity(rows), y: Vec::with_capacity(rows * d), ..Recorder::default() };
+            (Run::new(sys, y.clone(), &config)?, y, rec)
+        }
+        Start::Resume(cp) => {
+            if cp.run.y.len() != d {
+                return Err(Error::input(format!(
+                    "the checkpoint does not fit this run: its state has {} values, this run's {d} \
+                     ({n} links, form {}{})",
+                    cp.run.y.len(),
+                    form.name(),
+                    if tracks_work { ", with the torque's work" } else { "" }
+                )));
+            }
+            let bad = |what: String| Err(Error::input(format!("the checkpoint does not fit this run: {what}")));
+            if cp.out_y.len() != cp.out_t.len() * d || cp.initial.len() != d {
+                return bad(format!("{} output times but {} state values ({d} per row)", cp.out_t.len(), cp.out_y.len()));
+            }
+            if cp.next_out > t_eval.map_or(0, <[f64]>::len) {
+                return bad(format!("next_out = {} beyond the {} output times", cp.next_out, t_eval.map_or(0, <[f64]>::len)));
+            }
+            let rec = Recorder { t: cp.out_t.clone(), y: cp.out_y.clone(), next_out: cp.next_out, stopped_at: None };
+            (Run::resume(sys, cp.run.clone(), &config)?, cp.initial.clone(), rec)
+        }
+    };
+    if resume.is_none() && t_eval.is_none() {
+        rec.push(0.0, run.y());
+    }
+    // Fixed-step methods take an output time within 1e-9 of a step of a grid point as that
+    // point's state; dop853 interpolates every time inside a step.
+    let snap = if settings.method.adaptive() { 0.0 } else { 1e-9 };
+    while !run.at_end() {
+        if let Some(te) = t_eval {
+            let (t, h) = (run.t(), run.next_grid_step().unwrap_or(0.0));
+            while rec.next_out < te.len() && te[rec.next_out] <= t + snap * h {
+                rec.push(te[rec.next_out], run.y());
+                rec.next_out += 1;
+            }
+        }
+        run.step(t_end)?;
+        let ((t0, h), t1) = (run.last_step().unwrap_or_default(), run.t());
+        if tracker.active() {
+            if tracker.detect(t1, run.y())? {
+                run.dense()?;
+                let stop = tracker.locate(t0, h, |x, out| {
+                    run.interpolate(x, out);
+                    Ok(())
+                }, d)?;
+                if let Some((ts, ys)) = stop {
+                    let mut out = vec![0.0; d];
+                    if let Some(te) = t_eval {
+                        while rec.next_out < te.len() && te[rec.next_out] <= ts {
+                            run.interpolate((te[rec.next_out] - t0) / h, &mut out);
+                            rec.push_interpolated(te[rec.next_out], &out)?;
+                            rec.next_out += 1;
+                        }
+                    }
+                    rec.push_interpolated(ts, &ys)?;
+                    rec.stopped_at = Some(ts);
+                    break;
+                }
+            } else {
+                tracker.accept();
+            }
+        }
+        match t_eval {
+            Some(te) => {
+                let edge = t1 - snap * h;
+                if rec.next_out < te.len() && te[rec.next_out] < edge {
+                    run.dense()?;
+                    let mut out = vec![0.0; d];
+                    while rec.next_out < te.len() && te[rec.next_out] < edge {
+                        run.interpolate((te[rec.next_out] - t0) / h, &mut out);
+                        rec.push_interpolated(te[rec.next_out], &out)?;
+                        rec.next_out += 1;
+                    }
+                }
+            }
+            None => {
+                rec.push(t1, run.y());
+                if rec.t.len() == rec.t.capacity() {
+                    // The next row doubles the buffers: check that they fit before they grow.
+                    check_output_size(2.0 * rec.t.len() as f64, n)?;
+                }
+            }
+        }
+        let steps = run.state().steps;
+        after_step(steps, t1, &mut *monitor, &mut checkpoints, || Checkpoint {
+            run: run.save(),
+            initial: initial.clone(),
+            out_t: rec.t.clone(),
+            out_y: rec.y.clone(),
+            next_out: rec.next_out,
+        })?;
+    }
+    if let (Some(te), None) = (t_eval, rec.stopped_at) {
+        while rec.next_out < te.len() {
+            rec.push(te[rec.next_out], run.y());
+            rec.next_out += 1;
+        }
+    }
+    let st = run.state();
+    let stats = Stats { steps: st.steps, rejected: st.rejected, evaluations: st.evaluations, iterations: st.iterations, energy_error: 0.0 };
+    let hits = std::mem::take(&mut tracker.hits);
+    Ok(finish(chain, form, tracks_work, &initial, rec, hits, stats))
+}
+
+/// `omega` and `p` of a raw ODE state `y = [theta, omega or p, ...]` in the given form.
+pub(crate) fn fill_rates(chain: &Chain, form: Form, y: &[f64], omega: &mut [f64], p: &mut [f64], ws: &mut Workspace) {
+    let n = chain.n();
+    let theta = &y[..n];
+    match form {
+        Form::Lagrangian => {
+            omega.copy_from_slice(&y[n..2 * n]);
+            chain.momenta_into(theta, omega, p, ws);
+        }
+        Form::Hamiltonian => {
+            p.copy_from_slice(&y[n..2 * n]);
+            // Cannot fail: the same state passed through the right-hand side.
+            if chain.velocities_into(theta, p, omega, ws).is_err() {
+                omega.fill(f64::NAN);
+            }
+        }
+    }
+}
+
+/// Turn raw ODE states into theta, omega, p, energy, work and energy-error rows.
+fn finish(chain: &Chain, form: Form, work: bool, initial: &[f64], rec: Recorder, hits: Vec<Hit>, mut stats: Stats) -> Trajectory {
+    let n = chain.n();
+    let mut ws = Workspace::new(n);
+    let d = 2 * n + usize::from(work);
+    let rows = rec.t.len();
+    let mut tr = Trajectory {
+        n,
+        theta: Vec::with_capacity(rows * n),
+        omega: vec![0.0; rows * n],
+        p: vec![0.0; rows * n],
+        energy: Vec::with_capacity(rows),
+        work: Vec::with_capacity(rows),
+        energy_error: Vec::with_capacity(rows),
+        t: rec.t,
+        stats: Stats::default(),
+        form,
+        events: Vec::with_capacity(hits.len()),
+        stopped_at: rec.stopped_at,
+    };
+    let mut scratch = vec![0.0; n];
+    let (mut omega0, mut p0) = (vec![0.0; n], vec![0.0; n]);
+    fill_rates(chain, form, initial, &mut omega0, &mut p0, &mut ws);
+    let theta0 = &initial[..n];
+    let mut balance = EnergyBalance::new(chain, chain.kinetic_energy(theta0, &omega0, &mut scratch, &mut ws), chain.potential_energy(theta0));
+    for r in 0..rows {
+        let y = &rec.y[r * d..(r + 1) * d];
+        let theta = &y[..n];
+        tr.theta.extend_from_slice(theta);
+        let (omega, p) = (&mut tr.omega[r * n..(r + 1) * n], &mut tr.p[r * n..(r + 1) * n]);
+        fill_rates(chain, form, y, omega, p, &mut ws);
+        let kinetic = chain.kinetic_energy(theta, omega, &mut scratch, &mut ws);
+        let energy = kinetic + chain.potential_energy(theta);
+        let w = if work { y[2 * n] } else { 0.0 };
+        tr.energy.push(energy);
+        tr.work.push(w);
+        tr.energy_error.push(balance.observe(kinetic, energy, w));
+    }
+    for hit in hits {
+        let theta = hit.y[..n].to_vec();
+        let (mut omega, mut p) = (vec![0.0; n], vec![0.0; n]);
+        fill_rates(chain, form, &hit.y, &mut omega, &mut p, &mut ws);
+        tr.events.push((hit.event, hit.t, theta, omega, p));
+    }
+    stats.energy_error = tr.energy_error.iter().copied().fold(0.0, f64::max);
+    tr.stats = stats;
+    tr
+}
+
+/// Run a batch of initial states in parallel (rayon; one after another without the `parallel`
+/// feature); results in input order, each identical to its single run whatever the number of
+/// threads. Rows of `theta0`/`omega0` are states. Each finished trajectory counts a unit of
+/// `watch`; once it is stopped the running trajectories stop within `MONITOR_EVERY` steps.
+pub fn simulate_batch<T: TorqueSource + Clone + Send + Sync>(
+    chain: &Chain,
+    theta0: &[f64],
+    omega0: &[f64],
+    t_end: f64,
+    settings: &Settings,
+    torque: &T,
+    watch: &Watch,
+) -> Result<Vec<Trajectory>> {
+    let n = chain.n();
+    if theta0.len() != omega0.len() || theta0.len() % n != 0 {
+        return Err(Error::input(format!(
+            "theta0 and omega0 must both have shape (B, {n}), got {} and {} numbers",
+            theta0.len(),
+            omega0.len()
+        )));
+    }
+    if settings.method.adaptive() && settings.adaptive && settings.t_eval.is_none() {
+        return Err(Error::input(
+            "a batch run of an adaptive method needs t_eval (each trajectory takes its own steps)",
+        ));
+    }
+    let b = theta0.len() / n;
+    let rows = settings.validate(t_end)?;
+    check_output_size(rows as f64 * b as f64, n)?;
+    check_fixed_steps(settings, t_end)?;
+    (0..b)
+        .into_par_iter()
+        .map(|i| {
+            watch.check(0.0)?;
+            let range = i * n..(i + 1) * n;
+            let tr = simulate(chain, &theta0[range.clone()], &omega0[range], t_end, settings, torque.clone(), &mut |t| watch.check(t))
+                .map_err(|e| match e {
+                    Error::Input(m) => Error::Input(format!("trajectory {i}: {m}")),
+                    Error::Integration { t, reason } => Error::Integration { t, reason: format!("trajectory {i}: {reason}") },
+                    other => other,
+                })?;
+            watch.add_units(1);
+            Ok(tr)
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::dynamics::torque::Builtin;
+
+    fn settings(method: &str, dt: Option<f64>, t_eval: Option<Vec<f64>>) -> Settings {
+        Settings { method: Method::parse(method).unwrap(), dt, t_eval, rtol: 1e-9, atol: 1e-11, ..Settings::default() }
+    }
+
+    fn drive() -> Builtin {
+        Builtin::sinusoid(2, vec![0.3, 0.0], vec![2.0, 1.0], vec![0.0; 2], vec![0.0; 2]).unwrap()
+    }
+
+    /// Every checkpoint of a run, taken every `every` steps.
+    fn checkpoints_of(chain: &Chain, s: &Settings, t_end: f64, every: u64) -> (Trajectory, Vec<Checkpoint>) {
+        let mut saved = Vec::new();
+        let mut save = |cp: &Checkpoint| {
+            saved.push(cp.clone());
+            Ok(())
+        };
+        let mut cps = Checkpoints { every_steps: every, due: &mut || false, save: &mut save };
+        let start = Start::Initial { theta0: &[2.0, 2.5], omega0: &[0.0, 0.3] };
+        let tr = simulate_from(chain, start, t_end, s, drive(), &mut |_| Ok(()), Some(&mut cps)).unwrap();
+        (tr, saved)
+    }
+
+    #[test]
+    fn a_resumed_run_equals_the_uninterrupted_one_bit_for_bit() {
+        let chain = Chain::new(&[1.0, 0.8], &[1.0, 1.5], None, None, 9.81).unwrap();
+        let t_eval: Vec<f64> = (0..=300).map(|i| i as f64 * 0.01).collect();
+        for (method, dt) in [("rk4", Some(0.003)), ("gauss6", Some(0.007)), ("gauss4", Some(0.01)), ("dop853", None)] {
+            for te in [None, Some(t_eval.clone())] {
+                let s = settings(method, dt, te);
+                let plain = simulate(&chain, &[2.0, 2.5], &[0.0, 0.3], 3.0, &s, drive(), &mut |_| Ok(())).unwrap();
+                let (with, saved) = checkpoints_of(&chain, &s, 3.0, if method == "dop853" { 7 } else { 37 });
+                assert_eq!(with, plain, "{method}: taking checkpoints changed the run");
+                assert!(saved.len() >= 3, "{method}: {} checkpoints", saved.len());
+                for cp in [&saved[0], &saved[saved.len() / 2], saved.last().unwrap()] {
+                    // Through the bytes a checkpoint file holds.
+                    let cp = Checkpoint::from_bytes(&cp.to_bytes()).unwrap();
+                    let resumed =
+                        simulate_from(&chain, Start::Resume(&cp), 3.0, &s, drive(), &mut |_| Ok(()), None).unwrap();
+                    assert_eq!(resumed, plain, "{method}: resumed at t = {}", cp.t());
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn an_interrupting_monitor_leaves_a_last_checkpoint() {
+        let chain = Chain::new(&[1.0, 1.0], &[1.0, 1.0], None, None, 9.81).unwrap();
+        let s = settings("rk4", Some(0.001), None);
+        let mut last = None;
+        let mut save = |cp: &Checkpoint| {
+            last = Some(cp.clone());
+            Ok(())
+        };
+        let mut cps = Checkpoints { every_steps: 0, due: &mut || false, save: &mut save };
+        let start = Start::Initial { theta0: &[2.0, 2.5], omega0: &[0.0, 0.3] };
+        let mut monitor = |t: f64| if t > 1.0 { Err(Error::input("interrupted")) } else { Ok(()) };
+        let err = simulate_from(&chain, start, 3.0, &s, drive(), &mut monitor, Some(&mut cps)).unwrap_err();
+        assert!(err.to_string().contains("interrupted"));
+        let cp = last.expect("no checkpoint on interrupt");
+        assert_eq!(cp.run.steps % MONITOR_EVERY, 0);
+        assert!(cp.t() > 1.0 && cp.t() < 1.1, "t = {}", cp.t());
+        let plain = simulate(&chain, &[2.0, 2.5], &[0.0, 0.3], 3.0, &s, drive(), &mut |_| Ok(())).unwrap();
+        let resumed = simulate_from(&chain, Start::Resume(&cp), 3.0, &s, drive(), &mut |_| Ok(()), None).unwrap();
+        assert_eq!(resumed, plain);
+    }
+
+    #[test]
+    fn checkpoints_that_do_not_fit_are_refused() {
+        let chain = Chain::new(&[1.0, 1.0], &[1.0, 1.0], None, None, 9.81).unwrap();
+        let s = settings("gauss6", Some(0.01), None);
+        let (_, saved) = checkpoints_of(&chain, &s, 1.0, 20);
+        let cp = &saved[1];
+        let resume = |cp: &Checkpoint, s: &Settings| {
+            simulate_from(&chain, Start::Resume(cp), 1.0, s, drive(), &mut |_| Ok(()), None).unwrap_err().to_string()
+        };
+        let with = |run: State| Checkpoint { run, ..cp.clone() };
+        let off_grid = with(State { t: cp.t() + 1e-3, ..cp.run.clone() });
+        assert!(resume(&off_grid, &s).contains("not on the grid"), "{}", resume(&off_grid, &s));
+        let short = with(State { y: cp.run.y[..4].to_vec(), ..cp.run.clone() });
+        assert!(resume(&short, &s).contains("its state has 4 values, this run's 5"), "{}", resume(&short, &s));
+        assert!(resume(cp, &settings("rk4", Some(0.01), None)).contains("not that of this method"));
+        assert!(resume(cp, &settings("dop853", None, None)).contains("dop853"));
+        let rows = Checkpoint { out_t: cp.out_t[1..].to_vec(), ..cp.clone() };
+        assert!(resume(&rows, &s).contains("output times but"), "{}", resume(&rows, &s));
+        let nan = with(State { y: vec![f64::NAN; 5], ..cp.run.clone() });
+        assert!(resume(&nan, &s).contains("not finite"));
+        let with_events = Settings { events: vec![EventSpec { condition: crate::run::events::Condition::Flip(None), direction: 1, terminal: true }], ..s.clone() };
+        assert!(resume(cp, &with_events).contains("cannot be combined with events"));
+    }
+
+    #[test]
+    fn damaged_checkpoint_bytes_are_input_errors() {
+        let chain = Chain::new(&[1.0, 1.0], &[1.0, 1.0], None, None, 9.81).unwrap();
+        let (_, saved) = checkpoints_of(&chain, &settings("dop853", None, None), 1.0, 5);
+        let bytes = saved[0].to_bytes();
+        for cut in [0, 4, 8, 9, bytes.len() / 2, bytes.len() - 1] {
+            let e = Checkpoint::from_bytes(&bytes[..cut]).unwrap_err();
+            assert!(matches!(e, Error::Input(_)), "{e}");
+            assert!(e.to_string().contains("checkpoint's run state"), "{e}");
+        }
+        let mut other = bytes.clone();
+        other[7] = 1; // another format version
+        assert!(Checkpoint::from_bytes(&other).unwrap_err().to_string().contains("not of this format"));
+    }
+}
