@@ -93,7 +93,8 @@ def cases():
         rods, np.random.default_rng(6).uniform(-3, 3, (50, 3)), t_max=3.0))))
     out.append(("flip_map", lambda: _digest(mp.flip_map(
         mp.Chain([1, 1], [1, 1]), np.linspace(-3, 3, 24), np.linspace(-3, 3, 20), t_max=5.0).times)))
-    out.append(("ensemble", lambda: (lambda e: _digest(e.theta, e.omega, e.first_flip, e.energy_error))(
+    # (Not its energy_error: redefined on purpose against the initial state, issue 12.)
+    out.append(("ensemble", lambda: (lambda e: _digest(e.theta, e.omega, e.first_flip))(
         mp.ensemble(rods, np.random.default_rng(7).uniform(-2, 2, (32, 3)), np.zeros((32, 3)), 3.0))))
     out.append(("jacobian", lambda: _digest(rods.jacobian(th3, om3))))
     return out

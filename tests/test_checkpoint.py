@@ -134,16 +134,16 @@ def test_damaged_archives_raise_input_error_naming_the_problem(tmp_path, archive
         with pytest.raises(mp.InputError, match=message):
             mp.resume(tmp_path / name)
     flipped = bytearray(data)
-    i = data.index(b"out_y.npy")  # a byte inside a stored member: the CRC check fails
+    i = data.index(b"state.npy")  # a byte inside a stored member: the CRC check fails
     flipped[i + 200] ^= 0xFF
     (tmp_path / "flipped.ckpt").write_bytes(bytes(flipped))
     with pytest.raises(mp.InputError, match="truncated or corrupt"):
         mp.load_checkpoint(tmp_path / "flipped.ckpt")
     with pytest.raises(mp.InputError, match="no such checkpoint file"):
         mp.resume(tmp_path / "absent.ckpt")
-    with pytest.raises(mp.InputError, match="missing y, slope"):
-        mp.resume(_rewrite(archive, tmp_path / "m.ckpt", drop=("y", "slope")))
-    with pytest.raises(mp.InputError, match="format version 99; this multipendulum reads version 1"):
+    with pytest.raises(mp.InputError, match="missing t_eval, state"):
+        mp.resume(_rewrite(archive, tmp_path / "m.ckpt", drop=("t_eval", "state")))
+    with pytest.raises(mp.InputError, match="format version 99; this multipendulum reads version 2"):
         mp.resume(_rewrite(archive, tmp_path / "v.ckpt", meta=lambda m: m.update(format_version=99)))
     with pytest.raises(mp.InputError, match="not a multipendulum checkpoint"):
         mp.resume(_rewrite(archive, tmp_path / "f.ckpt", meta=lambda m: m.update(format="something-else")))
@@ -151,13 +151,24 @@ def test_damaged_archives_raise_input_error_naming_the_problem(tmp_path, archive
         mp.resume(_rewrite(archive, tmp_path / "s.ckpt", meta=lambda m: m["state"].update(steps=-1)))
     with pytest.raises(mp.InputError, match="lacks t_end"):
         mp.resume(_rewrite(archive, tmp_path / "r.ckpt", meta=lambda m: m["run"].pop("t_end")))
-    with pytest.raises(mp.InputError, match="member y must be a float64 vector"):
-        mp.resume(_rewrite(archive, tmp_path / "i.ckpt", arrays={"y": np.arange(6)}))
-    # Consistent on its face, but not this run's: the core refuses it.
-    with pytest.raises(mp.InputError, match="its state has 5 values, this run's 6"):
-        mp.resume(_rewrite(archive, tmp_path / "y.ckpt", arrays={"y": np.ones(5)}))
-    with pytest.raises(mp.InputError, match="not on the grid"):
+    with pytest.raises(mp.InputError, match="member theta0 must be a float64 vector"):
+        mp.resume(_rewrite(archive, tmp_path / "i.ckpt", arrays={"theta0": np.arange(3)}))
+    with pytest.raises(mp.InputError, match="member state must be a uint8 vector"):
+        mp.resume(_rewrite(archive, tmp_path / "u.ckpt", arrays={"state": np.ones(5)}))
+    # The core's serialised run state, damaged or cut: the core refuses it, naming the file.
+    state = np.load(archive)["state"]
+    with pytest.raises(mp.InputError, match="c.ckpt.*run state cannot be read"):
+        mp.resume(_rewrite(archive, tmp_path / "c.ckpt", arrays={"state": state[: state.size // 2]}))
+    with pytest.raises(mp.InputError, match="not of this format"):
+        mp.resume(_rewrite(archive, tmp_path / "x.ckpt", arrays={"state": state[::-1].copy()}))
+    # The metadata and the run state disagree.
+    with pytest.raises(mp.InputError, match="the run state is at t = .* the metadata says t = 0.3"):
         mp.resume(_rewrite(archive, tmp_path / "t.ckpt", meta=lambda m: m["state"].update(t=0.3)))
+    # Consistent on its face, but not this run's (a chain of two links): the core refuses it.
+    two = {"lengths": np.ones(2), "masses": np.ones(2), "com": np.ones(2), "inertia": np.zeros(2),
+           "theta0": np.ones(2), "omega0": np.zeros(2)}
+    with pytest.raises(mp.InputError, match="its state has 6 values, this run's 4"):
+        mp.resume(_rewrite(archive, tmp_path / "y.ckpt", arrays=two))
 
 
 def test_another_package_version_is_refused_unless_asked(tmp_path, archive):

@@ -64,7 +64,8 @@ def lyapunov(chain: Chain, theta0, omega0, t_end, dt=0.005, k=None, renorm_every
         raise InputError(f"renorm_every must be a positive integer (steps), got {renorm_every!r}")
     spec, joint = normalise_torque(torque, None, chain.n)
     exps, times, hist = _core.lyapunov(chain._c, th0.tolist(), om0.tolist(), as_float(t_end, "t_end"),
-                                       as_float(dt, "dt"), int(k), int(renorm_every), spec)
+                                       dt=as_float(dt, "dt"), k=int(k), renorm_every=int(renorm_every),
+                                       torque_spec=spec)
     return LyapunovResult(exps, times, hist.reshape(times.size, int(k)))
 
 
@@ -93,8 +94,8 @@ def flip_times(chain: Chain, theta0, omega0=None, t_max=10.0, dt=0.01, link=None
     if th0.shape != om0.shape:
         raise InputError(f"theta0 and omega0 must have the same shape, got {th0.shape} and {om0.shape}")
     spec, _ = normalise_torque(torque, None, chain.n)
-    out = _core.first_flips(chain._c, th0.ravel(), om0.ravel(), as_float(t_max, "t_max"), as_float(dt, "dt"),
-                            _link(link, chain.n), spec)
+    out = _core.first_flips(chain._c, th0.ravel(), om0.ravel(), as_float(t_max, "t_max"), dt=as_float(dt, "dt"),
+                            link=_link(link, chain.n), torque_spec=spec)
     return out.reshape(th0.shape[:-1])
 
 

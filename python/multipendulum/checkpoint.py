@@ -10,9 +10,10 @@ The archive is an NPZ file (``np.savez``, no pickles) holding ``metadata``, a JS
 (``format`` "multipendulum-checkpoint", ``format_version``, the package ``version``, the
 simulate arguments, the counters, the scenario when the run came from one), the chain's
 ``lengths``, ``masses``, ``com``, ``inertia``, ``g``, the initial ``theta0``/``omega0``,
-``t_eval``, and the state: ``y`` (the raw ODE state ``[theta, omega or p, work]``), the
-integrator's memory ``k``, ``comp``, ``slope``, and the output rows so far ``out_t``,
-``out_y``. It is written atomically (a temporary file beside it, fsynced, renamed over it), so
+``t_eval``, and ``state``: the core's run state serialised whole (bytes, as a uint8 array:
+the run driver's time, raw ODE state ``[theta, omega or p, work]``, counters and the
+integrator's typed memory, the initial state and the output rows so far), so no part of it can
+be left out by a hand-written list. It is written atomically (a temporary file beside it, fsynced, renamed over it), so
 a kill at any moment leaves the previous archive or the new one, never half of one.
 
 Not checkpointable, and refused with a clear message: batch runs, a torque given as a Python
@@ -34,13 +35,12 @@ from .errors import InputError
 __all__ = ["resume", "load_checkpoint", "Archive", "FORMAT", "FORMAT_VERSION"]
 
 FORMAT = "multipendulum-checkpoint"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 #: Seconds of wall time between checkpoints when neither a step count nor a time is given.
 DEFAULT_SECONDS = 60.0
 _CHAIN = ("lengths", "masses", "com", "inertia", "g")
-_STATE_ARRAYS = ("y", "k", "comp", "slope", "out_t", "out_y")
-_MEMBERS = ("metadata",) + _CHAIN + ("theta0", "omega0", "t_eval") + _STATE_ARRAYS
-_COUNTERS = ("steps", "rejected", "evaluations", "iterations", "next_out")
+_MEMBERS = ("metadata",) + _CHAIN + ("theta0", "omega0", "t_eval", "state")
+_COUNTERS = ("steps",)
 _RUN_KEYS = ("method", "form", "t_end", "dt", "rtol", "atol", "adaptive", "max_steps", "torque", "joint",
              "has_t_eval")
 
@@ -76,14 +76,9 @@ class Archive:
         """What the writer asked to keep (``checkpoint_info``): the CLI keeps the scenario there."""
         return self.metadata.get("info") or {}
 
-    def state(self) -> Dict[str, Any]:
-        """The run's state in the form the core takes it back."""
-        s = self.metadata["state"]
-        state = {k: int(s[k]) for k in _COUNTERS}
-        state["t"] = float(s["t"])
-        state["h"] = None if s["h"] is None else float(s["h"])
-        state.update({k: self.arrays[k] for k in _STATE_ARRAYS})
-        return state
+    def state(self) -> bytes:
+        """The run's state as the core serialised it (and takes it back)."""
+        return self.arrays["state"].tobytes()
 
     def chain(self):
         from ._chain import Chain
@@ -141,15 +136,15 @@ class Writer:
         self.start = time.perf_counter()
         self.saved = 0
 
-    def __call__(self, state: Dict[str, Any]) -> None:
+    def __call__(self, state: bytes, t: float, steps: int) -> None:
         from .results import atomic_path
 
         meta = dict(self.meta)
         meta["created"] = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
         meta["wall_time"] = self.wall_before + (time.perf_counter() - self.start)
-        meta["state"] = {k: state[k] for k in _COUNTERS + ("t", "h")}
+        meta["state"] = {"t": float(t), "steps": int(steps)}
         arrays = dict(self.fixed)
-        arrays.update({k: np.asarray(state[k], dtype=np.float64) for k in _STATE_ARRAYS})
+        arrays["state"] = np.frombuffer(state, dtype=np.uint8)
         with atomic_path(self.path) as tmp:
             with open(tmp, "wb") as f:
                 np.savez(f, metadata=np.asarray(json.dumps(meta)), **arrays)
@@ -219,7 +214,7 @@ def load_checkpoint(path, any_version: bool = False) -> Archive:
         raise InputError(f"{name} was written by multipendulum {meta.get('version')!r}, this is {_version()!r}: "
                          "a resumed run is bit-for-bit only with the same version "
                          "(pass any_version=True to continue anyway)")
-    for key, fields in (("run", _RUN_KEYS), ("state", _COUNTERS + ("t", "h")), ("checkpoint", ("every_steps", "every_seconds"))):
+    for key, fields in (("run", _RUN_KEYS), ("state", _COUNTERS + ("t",)), ("checkpoint", ("every_steps", "every_seconds"))):
         part = meta.get(key)
         if not isinstance(part, dict):
             raise InputError(f"{name}: the checkpoint's metadata has no {key!r} table")
@@ -230,14 +225,23 @@ def load_checkpoint(path, any_version: bool = False) -> Archive:
         v = meta["state"][k]
         if isinstance(v, bool) or not isinstance(v, int) or v < 0:
             raise InputError(f"{name}: state.{k} must be an integer >= 0, got {v!r}")
-    for k in ("t",) + (("h",) if meta["state"]["h"] is not None else ()):
-        v = meta["state"][k]
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-            raise InputError(f"{name}: state.{k} must be a finite number, got {v!r}")
+    v = meta["state"]["t"]
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise InputError(f"{name}: state.t must be a finite number, got {v!r}")
     for k, a in arrays.items():
-        if a.dtype != np.float64 or a.ndim != (0 if k == "g" else 1):
-            raise InputError(f"{name}: member {k} must be a float64 {'scalar' if k == 'g' else 'vector'}, "
+        want = np.uint8 if k == "state" else np.float64
+        if a.dtype != want or a.ndim != (0 if k == "g" else 1):
+            raise InputError(f"{name}: member {k} must be a {np.dtype(want).name} {'scalar' if k == 'g' else 'vector'}, "
                              f"got {a.dtype} of shape {a.shape}")
+    from . import _core
+
+    try:
+        t, steps = _core.checkpoint_time(arrays["state"].tobytes())
+    except InputError as exc:
+        raise InputError(f"{name}: {exc}") from None
+    if (t, steps) != (float(meta["state"]["t"]), meta["state"]["steps"]):
+        raise InputError(f"{name}: the run state is at t = {t} after {steps} steps, the metadata says "
+                         f"t = {meta['state']['t']} after {meta['state']['steps']}")
     return Archive(meta, arrays, path)
 
 

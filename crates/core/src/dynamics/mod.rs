@@ -209,6 +209,28 @@ impl Chain {
         }
     }
 
+    /// The exact Jacobian of the Lagrangian right-hand side `(omega, theta_ddot)` with respect to
+    /// `(theta, omega)` at a state with generalized torques `tau` (taken as depending on time
+    /// only), row-major `2N x 2N` into `out`: one column per unit tangent vector, from the
+    /// variational equations, O(N^2) in all.
+    pub fn jacobian_into(&self, theta: &[f64], omega: &[f64], tau: &[f64], out: &mut [f64], ws: &mut Workspace) -> Result<(), Singular> {
+        let n = self.n();
+        let m = 2 * n;
+        let mut acc = vec![0.0; n];
+        self.accelerations_into(theta, omega, tau, &mut acc, ws)?;
+        let (mut dir, mut col, mut scratch) = (vec![0.0; m], vec![0.0; n], vec![0.0; 6 * n]);
+        for j in 0..m {
+            dir.fill(0.0);
+            dir[j] = 1.0;
+            self.tangent_accelerations_into(theta, omega, &acc, &dir[..n], &dir[n..], &mut col, &mut scratch, ws)?;
+            for i in 0..n {
+                out[i * m + j] = dir[n + i]; // d theta_dot / d(.) = d omega / d(.)
+                out[(n + i) * m + j] = col[i];
+            }
+        }
+        Ok(())
+    }
+
     /// The variational (tangent) equations of the Lagrangian form: the derivative of
     /// `theta_ddot(theta, omega)` along `(d_theta, d_omega)`, for torques that depend on time only.
     /// Differentiating `A theta_ddot = r` gives `A d_theta_ddot = dr - (dA) theta_ddot`; every term

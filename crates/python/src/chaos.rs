@@ -1,0 +1,77 @@
+//! Chaos tools of the core: Lyapunov exponents and first-flip times, interruptible.
+use multipendulum_core as core;
+use numpy::{PyArray1, PyReadonlyArray1};
+use pyo3::prelude::*;
+use pyo3::types::PyTuple;
+
+use core::Watch;
+
+use crate::chain::PyChain;
+use crate::torque::builtin_only;
+use crate::{interruptible, slice, to_py, vec_out};
+
+pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(lyapunov, m)?)?;
+    m.add_function(wrap_pyfunction!(first_flips, m)?)?;
+    m.add_function(wrap_pyfunction!(flip_energy_threshold, m)?)?;
+    Ok(())
+}
+
+/// Lyapunov exponents by the variational equations; see `multipendulum_core::chaos::lyapunov`.
+#[pyfunction]
+#[pyo3(signature = (chain, theta0, omega0, t_end, *, dt, k, renorm_every, torque_spec=None, progress=None))]
+#[allow(clippy::too_many_arguments)]
+fn lyapunov<'py>(
+    py: Python<'py>,
+    chain: &PyChain,
+    theta0: Vec<f64>,
+    omega0: Vec<f64>,
+    t_end: f64,
+    dt: f64,
+    k: usize,
+    renorm_every: u64,
+    torque_spec: Option<Bound<'py, PyTuple>>,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>)> {
+    let c = &chain.inner;
+    let torque = builtin_only(py, c.n(), torque_spec.as_ref(), "lyapunov")?;
+    let watch = Watch::new();
+    let out = interruptible(py, &watch, progress.as_ref(), || {
+        core::chaos::lyapunov(c, &theta0, &omega0, t_end, dt, k, renorm_every, torque, &watch)
+    })?
+    .map_err(|e| to_py(py, e))?;
+    Ok((vec_out(py, out.exponents), vec_out(py, out.times), vec_out(py, out.history)))
+}
+
+/// First-flip times of the rows of flat `theta0`/`omega0` (+inf: never), in parallel.
+#[pyfunction]
+#[pyo3(signature = (chain, theta0, omega0, t_max, *, dt, link=None, torque_spec=None, progress=None))]
+#[allow(clippy::too_many_arguments)]
+fn first_flips<'py>(
+    py: Python<'py>,
+    chain: &PyChain,
+    theta0: PyReadonlyArray1<'py, f64>,
+    omega0: PyReadonlyArray1<'py, f64>,
+    t_max: f64,
+    dt: f64,
+    link: Option<usize>,
+    torque_spec: Option<Bound<'py, PyTuple>>,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<Bound<'py, PyArray1<f64>>> {
+    let c = &chain.inner;
+    let torque = builtin_only(py, c.n(), torque_spec.as_ref(), "flip maps")?;
+    let (theta0, omega0) = (slice("theta0", &theta0)?, slice("omega0", &omega0)?);
+    let watch = Watch::units((theta0.len() / c.n().max(1)) as u64);
+    let out = interruptible(py, &watch, progress.as_ref(), || {
+        core::chaos::first_flips(c, theta0, omega0, t_max, dt, link, &torque, &watch)
+    })?
+    .map_err(|e| to_py(py, e))?;
+    Ok(vec_out(py, out))
+}
+
+#[pyfunction]
+#[pyo3(signature = (chain, link))]
+fn flip_energy_threshold(py: Python<'_>, chain: &PyChain, link: Option<usize>) -> PyResult<f64> {
+    core::chaos::flip_energy_threshold(&chain.inner, link).map_err(|e| to_py(py, e))
+}
+

@@ -1,0 +1,298 @@
+//! `simulate`: one run or a batch, with events and checkpoints, through the core's run driver.
+use std::cell::RefCell;
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
+
+use multipendulum_core as core;
+use numpy::PyReadonlyArray1;
+use pyo3::prelude::*;
+use pyo3::types::{PyBytes, PyTuple};
+
+use core::{Error, Form, Method, Settings, Watch};
+
+use crate::chain::PyChain;
+use crate::torque::{torque, torque_error, AnyTorque};
+use crate::{interruptible, slice, to_py, vec_out, InputError};
+
+pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(simulate, m)?)?;
+    m.add_function(wrap_pyfunction!(checkpoint_time, m)?)?;
+    Ok(())
+}
+
+fn rows(name: &str, len: usize, n: usize) -> PyResult<usize> {
+    if len % n != 0 || len == 0 {
+        return Err(InputError::new_err(format!("{name} must have shape (..., {n}), got {len} numbers")));
+    }
+    Ok(len / n)
+}
+
+struct Trajectories(Vec<core::Trajectory>);
+
+/// The run's outputs as a dict of flat arrays (Python reshapes): t, theta, omega, p, energy,
+/// work, and the stats.
+fn trajectories_out<'py>(py: Python<'py>, trs: Trajectories) -> PyResult<Bound<'py, pyo3::types::PyDict>> {
+    use pyo3::types::PyDict;
+    let d = PyDict::new(py);
+    let mut trs = trs.0;
+    let first = &trs[0];
+    d.set_item("t", vec_out(py, first.t.clone()))?;
+    d.set_item("form", first.form.name())?;
+    let stats = PyDict::new(py);
+    for (k, f) in [
+        ("steps", (|s: &core::Stats| s.steps as f64) as fn(&core::Stats) -> f64),
+        ("rejected", |s| s.rejected as f64),
+        ("evaluations", |s| s.evaluations as f64),
+        ("iterations", |s| s.iterations as f64),
+        ("energy_error", |s| s.energy_error),
+    ] {
+        stats.set_item(k, vec_out(py, trs.iter().map(|t| f(&t.stats)).collect()))?;
+    }
+    d.set_item("stats", stats)?;
+    let take = |trs: &mut Vec<core::Trajectory>, f: fn(&mut core::Trajectory) -> Vec<f64>| -> Vec<f64> {
+        if trs.len() == 1 {
+            return f(&mut trs[0]);
+        }
+        trs.iter_mut().flat_map(f).collect()
+    };
+    d.set_item("theta", vec_out(py, take(&mut trs, |t| std::mem::take(&mut t.theta))))?;
+    d.set_item("omega", vec_out(py, take(&mut trs, |t| std::mem::take(&mut t.omega))))?;
+    d.set_item("p", vec_out(py, take(&mut trs, |t| std::mem::take(&mut t.p))))?;
+    d.set_item("energy", vec_out(py, take(&mut trs, |t| std::mem::take(&mut t.energy))))?;
+    d.set_item("work", vec_out(py, take(&mut trs, |t| std::mem::take(&mut t.work))))?;
+    d.set_item("energy_error", vec_out(py, take(&mut trs, |t| std::mem::take(&mut t.energy_error))))?;
+    let events = pyo3::types::PyList::empty(py);
+    let stopped = pyo3::types::PyList::empty(py);
+    for tr in trs.iter_mut() {
+        let hits = pyo3::types::PyList::empty(py);
+        for (i, t, theta, omega, p) in std::mem::take(&mut tr.events) {
+            hits.append((i, t, vec_out(py, theta), vec_out(py, omega), vec_out(py, p)))?;
+        }
+        events.append(hits)?;
+        stopped.append(tr.stopped_at)?;
+    }
+    d.set_item("events", events)?;
+    d.set_item("stopped_at", stopped)?;
+    Ok(d)
+}
+
+/// A Python event function `g(t, theta, omega) -> float`; its exception is kept to re-raise.
+struct PyEvent {
+    f: Py<PyAny>,
+    error: std::sync::Arc<std::sync::Mutex<Option<PyErr>>>,
+}
+
+impl core::EventFn for PyEvent {
+    fn value(&self, t: f64, theta: &[f64], omega: &[f64]) -> core::Result<f64> {
+        Python::attach(|py| {
+            let r = self
+                .f
+                .call1(py, (t, vec_out(py, theta.to_vec()), vec_out(py, omega.to_vec())))
+                .and_then(|v| {
+                    v.extract::<f64>(py).map_err(|_| {
+                        InputError::new_err(format!(
+                            "the event function must return a number, got {}",
+                            v.bind(py).repr().map(|r| r.to_string()).unwrap_or_default()
+                        ))
+                    })
+                });
+            r.map_err(|e| {
+                *self.error.lock().unwrap_or_else(|p| p.into_inner()) = Some(e);
+                Error::Torque { t }
+            })
+        })
+    }
+}
+
+type EventErrors = std::sync::Arc<std::sync::Mutex<Option<PyErr>>>;
+
+/// An event from the Python layer's normalised spec: `("flip", link | None, direction, terminal)`,
+/// `("linear", theta_coefficients, omega_coefficients, constant, direction, terminal)` or
+/// `("callable", g, direction, terminal)`.
+fn event_spec(spec: &Bound<'_, PyTuple>, errors: &EventErrors) -> PyResult<core::EventSpec> {
+    let kind: String = spec.get_item(0)?.extract()?;
+    let (condition, rest) = match kind.as_str() {
+        "callable" => (
+            core::Condition::Custom(std::sync::Arc::new(PyEvent { f: spec.get_item(1)?.unbind(), error: errors.clone() })),
+            2,
+        ),
+        "flip" => (core::Condition::Flip(spec.get_item(1)?.extract()?), 2),
+        "linear" => (
+            core::Condition::Linear {
+                theta: spec.get_item(1)?.extract()?,
+                omega: spec.get_item(2)?.extract()?,
+                constant: spec.get_item(3)?.extract()?,
+            },
+            4,
+        ),
+        other => return Err(InputError::new_err(format!("unknown event kind {other:?}"))),
+    };
+    Ok(core::EventSpec { condition, direction: spec.get_item(rest)?.extract()?, terminal: spec.get_item(rest + 1)?.extract()? })
+}
+
+/// Integrate B >= 1 initial states (rows of flat `theta0`, `omega0`). Built-in torques run
+/// without the GIL (a batch on all cores), interruptible by Ctrl-C; a Python torque function
+/// runs the rows in turn on this thread, holding it. `checkpoint`: `(every_steps, every_seconds,
+/// save)`, `save(state: bytes, t, steps)` called with the run's serialised state; `resume`: such
+/// bytes.
+#[pyfunction]
+#[pyo3(signature = (chain, theta0, omega0, t_end, *, method, rtol, atol, max_steps, form=None, dt=None, adaptive=true, t_eval=None, torque_spec=None, joint=false, progress=None, events=None, checkpoint=None, resume=None))]
+#[allow(clippy::too_many_arguments)]
+fn simulate<'py>(
+    py: Python<'py>,
+    chain: &PyChain,
+    theta0: PyReadonlyArray1<'py, f64>,
+    omega0: PyReadonlyArray1<'py, f64>,
+    t_end: f64,
+    method: &str,
+    rtol: f64,
+    atol: f64,
+    max_steps: u64,
+    form: Option<&str>,
+    dt: Option<f64>,
+    adaptive: bool,
+    t_eval: Option<PyReadonlyArray1<'py, f64>>,
+    torque_spec: Option<Bound<'py, PyTuple>>,
+    joint: bool,
+    progress: Option<Py<PyAny>>,
+    events: Option<Vec<Bound<'py, PyTuple>>>,
+    checkpoint: Option<(u64, Option<f64>, Py<PyAny>)>,
+    resume: Option<Vec<u8>>,
+) -> PyResult<Bound<'py, pyo3::types::PyDict>> {
+    let c = &chain.inner;
+    let n = c.n();
+    let err = |e| to_py(py, e);
+    let event_errors: EventErrors = Default::default();
+    let settings = Settings {
+        method: Method::parse(method).map_err(err)?,
+        form: form.map(Form::parse).transpose().map_err(err)?,
+        dt,
+        rtol,
+        atol,
+        adaptive,
+        t_eval: t_eval.as_ref().map(|a| slice("t_eval", a).map(<[f64]>::to_vec)).transpose()?,
+        max_steps,
+        events: events.unwrap_or_default().iter().map(|e| event_spec(e, &event_errors)).collect::<PyResult<_>>()?,
+    };
+    let (theta0, omega0) = (slice("theta0", &theta0)?, slice("omega0", &omega0)?);
+    let b = rows("theta0", theta0.len(), n)?;
+    let slot = RefCell::new(None);
+    let src = torque(n, torque_spec.as_ref(), joint, &slot)?;
+    let resume = resume.as_deref().map(core::Checkpoint::from_bytes).transpose().map_err(err)?;
+    let callable = matches!(src, AnyTorque::Call(_) | AnyTorque::JointCall(_));
+    if (checkpoint.is_some() || resume.is_some()) && (b > 1 || callable) {
+        return Err(InputError::new_err(
+            "checkpoints need a single run with a built-in torque (not a batch, not a Python torque function)",
+        ));
+    }
+    let save_error: Mutex<Option<PyErr>> = Default::default();
+    let mut last_save = Instant::now();
+    let (every_steps, every_seconds) = checkpoint.as_ref().map_or((0, None), |c| (c.0, c.1));
+    let mut due = || {
+        let due = every_seconds.is_some_and(|s| last_save.elapsed().as_secs_f64() >= s);
+        if due {
+            last_save = Instant::now();
+        }
+        due
+    };
+    let mut save = |cp: &core::Checkpoint| -> core::Result<()> {
+        let Some((_, _, cb)) = checkpoint.as_ref() else { return Ok(()) };
+        Python::attach(|py| cb.call1(py, (PyBytes::new(py, &cp.to_bytes()), cp.t(), cp.run.steps)).map(drop)).map_err(|e| {
+            *save_error.lock().unwrap_or_else(|p| p.into_inner()) = Some(e);
+            Error::Torque { t: cp.t() }
+        })
+    };
+    let start = match &resume {
+        Some(cp) => core::Start::Resume(cp),
+        None => core::Start::Initial { theta0, omega0 },
+    };
+    // A failed checkpoint write matters more than the interrupt that asked for it; then a Python
+    // callback's own exception; then the core's error.
+    let fail = |e: Error| -> PyErr {
+        if let Some(p) = save_error.lock().unwrap_or_else(|p| p.into_inner()).take() {
+            return p;
+        }
+        if let Some(p) = event_errors.lock().unwrap_or_else(|p| p.into_inner()).take() {
+            return p;
+        }
+        torque_error(py, e, &slot)
+    };
+    let progress = progress.as_ref();
+    let result = match src {
+        AnyTorque::Builtin(s) if b > 1 => {
+            let watch = Watch::units(b as u64);
+            interruptible(py, &watch, progress, || core::simulate_batch(c, theta0, omega0, t_end, &settings, &s, &watch))?.map(Trajectories)
+        }
+        AnyTorque::JointBuiltin(s) if b > 1 => {
+            let watch = Watch::units(b as u64);
+            interruptible(py, &watch, progress, || core::simulate_batch(c, theta0, omega0, t_end, &settings, &s, &watch))?.map(Trajectories)
+        }
+        AnyTorque::Builtin(s) => {
+            let watch = Watch::new();
+            let mut monitor = |t: f64| {
+                watch.set_fraction(t / t_end);
+                watch.check(t)
+            };
+            interruptible(py, &watch, progress, || {
+                let mut cps = checkpoint.as_ref().map(|_| core::Checkpoints { every_steps, due: &mut due, save: &mut save });
+                core::simulate_from(c, start, t_end, &settings, s, &mut monitor, cps.as_mut())
+            })?
+            .map(|t| Trajectories(vec![t]))
+        }
+        AnyTorque::JointBuiltin(s) => {
+            let watch = Watch::new();
+            let mut monitor = |t: f64| {
+                watch.set_fraction(t / t_end);
+                watch.check(t)
+            };
+            interruptible(py, &watch, progress, || {
+                let mut cps = checkpoint.as_ref().map(|_| core::Checkpoints { every_steps, due: &mut due, save: &mut save });
+                core::simulate_from(c, start, t_end, &settings, s, &mut monitor, cps.as_mut())
+            })?
+            .map(|t| Trajectories(vec![t]))
+        }
+        mut src => {
+            // The torque function needs the GIL: the rows in turn, here; Ctrl-C and progress
+            // are checked now and then between steps.
+            let mut last = Instant::now();
+            let mut pending: Option<PyErr> = None;
+            let mut out = Vec::with_capacity(b);
+            let mut res = Ok(());
+            for i in 0..b {
+                let r = i * n..(i + 1) * n;
+                let mut monitor = |t: f64| {
+                    if last.elapsed() < Duration::from_millis(100) {
+                        return Ok(());
+                    }
+                    last = Instant::now();
+                    let fraction = (i as f64 + t / t_end) / b as f64;
+                    py.check_signals().and_then(|()| progress.map_or(Ok(()), |cb| cb.call1(py, (fraction,)).map(drop))).map_err(|e| {
+                        pending = Some(e);
+                        Error::Interrupted { t }
+                    })
+                };
+                match core::simulate(c, &theta0[r.clone()], &omega0[r], t_end, &settings, &mut src, &mut monitor) {
+                    Ok(t) => out.push(t),
+                    Err(e) => {
+                        res = Err(e);
+                        break;
+                    }
+                }
+            }
+            if let Some(p) = pending {
+                return Err(p);
+            }
+            res.map(|_| Trajectories(out))
+        }
+    };
+    let trs = result.map_err(fail)?;
+    trajectories_out(py, trs)
+}
+
+/// `(t, steps)` of serialised checkpoint bytes, or an InputError saying why they cannot be read.
+#[pyfunction]
+fn checkpoint_time(py: Python<'_>, state: Vec<u8>) -> PyResult<(f64, u64)> {
+    let cp = core::Checkpoint::from_bytes(&state).map_err(|e| to_py(py, e))?;
+    Ok((cp.t(), cp.run.steps))
+}
+
