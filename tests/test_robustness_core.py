@@ -1,0 +1,112 @@
+"""Robustness classes that live in the core (issue 12): the energy error against the initial
+state on a scale that never vanishes (2), dop853 retrying instead of giving up (4), Ctrl-C
+reaching long parallel work (5). Each test fails on the code before the fix."""
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import numpy as np
+import pytest
+
+import multipendulum as mp
+
+
+def _well(chain):
+    """g sum |h_i|, from the chain's parameters (h_i = m_i c_i + l_i sum_{k>i} m_k)."""
+    m, l, c = chain.masses, chain.lengths, chain.com
+    below = np.concatenate([np.cumsum(m[::-1])[::-1][1:], [0.0]])
+    return chain.g * np.sum(np.abs(m * c + l * below))
+
+
+def test_the_energy_error_is_against_the_initial_state_not_the_first_output():
+    chain = mp.Chain([1.0, 1.0], [1.0, 1.0])
+    sol = mp.simulate(chain, [2, 2.5], [0, 0], 10, method="rk4", dt=0.05, t_eval=[10.0])
+    e0 = chain.energy([2, 2.5], [0, 0])
+    residual = abs(sol.energy[-1] - e0)
+    kinetic = max(sol.energy[-1] - chain.energy(sol.theta[-1], np.zeros(2)), 0.0)
+    scale = _well(chain) + kinetic
+    assert sol.stats.energy_error == pytest.approx(residual / scale, rel=1e-9)
+    assert sol.stats.energy_error > 1e-2  # rk4 at dt = 0.05 on the chaotic double pendulum: far from 0
+
+
+def test_a_chain_released_horizontally_from_rest_has_a_small_relative_error():
+    rods = mp.Chain.rods([1.0, 1.0, 1.0], [1.0, 1.0, 1.0])
+    sol = mp.simulate(rods, [np.pi / 2] * 3, [0, 0, 0], 5.0, method="gauss6", dt=0.01)
+    e0 = rods.energy([np.pi / 2] * 3, [0, 0, 0])
+    assert abs(e0) < 1e-13
+    absolute = np.max(np.abs(sol.energy - e0))
+    assert 0 < absolute < 1e-3
+    # Before, the "relative" error divided by |E0| ~ 1e-16 and reported ~1e4.
+    assert sol.stats.energy_error < 1e-5
+    # Relative to the well (4.5 g) plus the kinetic energy: never above the absolute one over 4.5 g.
+    assert 0 <= sol.stats.energy_error <= absolute / (4.5 * 9.81) * (1 + 1e-9)
+    assert np.all(sol.energy_error >= 0) and sol.energy_error[0] == 0.0
+
+
+def test_every_report_of_the_energy_error_is_the_cores():
+    chain = mp.Chain([1.0, 0.7], [1.0, 2.0])
+    sol = mp.simulate(chain, [1.0, -0.5], [0.3, 0], 5.0, method="rk4", dt=0.01)
+    assert sol.stats.energy_error == np.max(sol.energy_error)
+    batch = mp.simulate(chain, [[1.0, -0.5], [0.2, 0.1]], [[0.3, 0], [0, 0]], 5.0, method="rk4", dt=0.01)
+    assert batch.stats.energy_error[0] == sol.stats.energy_error
+    # An ensemble keeps the final state only: its error is that of a run with that one output.
+    final = mp.simulate(chain, [1.0, -0.5], [0.3, 0], 5.0, method="rk4", dt=0.01, t_eval=[5.0])
+    ens = mp.ensemble(chain, [[1.0, -0.5]], [[0.3, 0]], 5.0, method="rk4", dt=0.01)
+    assert ens.energy_error[0] == final.stats.energy_error > 0
+
+
+def test_dop853_shrinks_a_first_step_far_too_large_instead_of_failing():
+    chain = mp.Chain([1.0, 1.0], [1.0, 1.0])
+    sol = mp.simulate(chain, [0.3, 0.2], [0, 0], 5.0, dt=10.0)
+    ref = mp.simulate(chain, [0.3, 0.2], [0, 0], 5.0)
+    assert sol.stats.rejected > 0
+    assert sol.stats.energy_error < 1e-9
+    np.testing.assert_allclose(sol.theta[-1], ref.theta[-1], atol=1e-8)  # regular motion: both at the tolerance
+
+
+def test_a_trial_stage_that_blows_up_is_a_rejected_step():
+    # A stiff, fast chain with a huge first step: the trial states overflow.
+    chain = mp.Chain([0.01] * 20, [1.0] * 20)
+    sol = mp.simulate(chain, np.full(20, 0.35), np.zeros(20), 0.05, dt=1e3, t_eval=[0.05])
+    assert np.isfinite(sol.theta).all() and sol.stats.rejected > 0
+
+
+LONG_BATCH = textwrap.dedent("""
+    import sys, numpy as np, multipendulum as mp
+    chain = mp.Chain([1.0, 1.0, 1.0], [1.0, 1.0, 1.0])
+    th = np.random.default_rng(1).uniform(-2, 2, ({B}, 3))
+    print("start", flush=True)
+    try:
+        {CALL}
+    except KeyboardInterrupt:
+        print("interrupted", flush=True)
+        sys.exit(3)
+    print("finished", flush=True)
+""")
+
+
+@pytest.mark.parametrize("call", [
+    "mp.simulate(chain, th, np.zeros_like(th), 200.0, method='rk4', dt=0.001, t_eval=[200.0])",
+    "mp.flip_times(mp.Chain([1, 1], [1, 1]), th[:, :2], t_max=1e4)",
+    "mp.lyapunov(chain, th[0], np.zeros(3), t_end=1e6)",
+], ids=["batch", "flip_times", "lyapunov"])
+def test_ctrl_c_stops_long_core_work_within_a_second(call):
+    script = LONG_BATCH.replace("{B}", "20000").replace("{CALL}", call)
+    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "start"
+        time.sleep(1.5)
+        assert proc.poll() is None, "the work finished before it could be interrupted"
+        sent = time.perf_counter()
+        proc.send_signal(signal.SIGINT)
+        code = proc.wait(timeout=10)
+        waited = time.perf_counter() - sent
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    out = proc.stdout.read()
+    assert code == 3 and "interrupted" in out, (code, out, proc.stderr.read())
+    assert waited < 1.0, f"took {waited:.2f} s to stop"
