@@ -9,9 +9,9 @@ orchestrates. Public API::
 
 from . import _core
 from ._chain import Chain
-from ._simulate import METHOD_INFO, METHODS, Crossing, Event, EventRecord, Flip, Solution, Stats, simulate
+from ._simulate import DEFAULTS, METHOD_INFO, METHODS, Crossing, Event, EventRecord, Flip, Solution, Stats, resume, simulate
 from ._torque import Sinusoid, Table
-from .checkpoint import load_checkpoint, resume
+from .checkpoint import load_checkpoint
 from .chaos import EnsembleResult, FlipMap, LyapunovResult, ensemble, PoincareSection, plot_poincare, poincare, flip_energy_threshold, flip_map, flip_times, lyapunov, trustworthy_until
 from .errors import InputError, IntegrationError
 from .modes import NormalModes, linearize, normal_modes

@@ -5,15 +5,14 @@ import math
 
 import numpy as np
 
-from . import _core
+import multipendulum._core as _core
 from ._convert import as_float, as_floats
-from ._torque import normalise_torque
+from ._torque import core_torque, normalise_torque
 from .errors import InputError
 
-ALGORITHMS = ("recursive", "cholesky", "cramer")
-# The reference routes cost O(N^4) (Cramer) and O(N^3) (dense Cholesky): refuse sizes that would hang.
-REFERENCE_LIMITS = {"cramer": 12, "cholesky": 2000}
-MAX_STATE = 1e15  # the core's model::MAX_STATE, for angles
+#: The routes to the accelerations and the most links each takes (None: any), from the core.
+ALGORITHMS = dict(_core.ALGORITHMS)
+MAX_STATE = _core.LIMITS["max_angle"]  # the largest |angle| a state may hold (the core's limit)
 
 
 def _finite_result(out: np.ndarray, what: str) -> np.ndarray:
@@ -94,7 +93,9 @@ class Chain:
         masses = as_floats(masses, "masses")
         if lengths.shape != masses.shape:
             raise InputError(f"masses must have {lengths.size} entries (one per link), got {masses.size}")
-        return cls(lengths, masses, com=lengths / 2, inertia=masses * lengths**2 / 12, g=g)
+        if lengths.ndim != 1:
+            raise InputError(f"lengths must be a 1-D sequence of numbers, got shape {lengths.shape}")
+        return cls._wrap(_core.Chain.rods(lengths.tolist(), masses.tolist(), as_float(g, "g")))
 
     @classmethod
     def _wrap(cls, core_chain) -> "Chain":
@@ -149,13 +150,10 @@ class Chain:
         """
         th, om = self._states(theta=theta, omega=omega)
         spec, joint = normalise_torque(torque, joint_torque, self.n)
-        if algorithm not in ALGORITHMS:
+        if not isinstance(algorithm, str):
             raise InputError(f"algorithm must be one of {', '.join(ALGORITHMS)}, got {algorithm!r}")
-        limit = REFERENCE_LIMITS.get(algorithm)
-        if limit is not None and self.n > limit:
-            raise InputError(f"algorithm {algorithm!r} is a reference route for N <= {limit}, got N = {self.n}; "
-                             "use the default \"recursive\" (O(N))")
-        out = self._c.accelerations(th.ravel(), om.ravel(), as_float(t, "t", finite=True), spec, joint, algorithm)
+        out = self._c.accelerations(th.ravel(), om.ravel(), t=as_float(t, "t", finite=True),
+                                    torque=core_torque(spec, joint), algorithm=algorithm)
         return _finite_result(out, "accelerations").reshape(th.shape)
 
     def jacobian(self, theta, omega, t=0.0, torque=None, joint_torque=None) -> np.ndarray:
@@ -166,14 +164,14 @@ class Chain:
         if th.ndim != 1:
             raise InputError(f"theta must have shape ({self.n},) for a Jacobian, got {th.shape}")
         spec, joint = normalise_torque(torque, joint_torque, self.n)
-        out = self._c.jacobian(th.tolist(), om.tolist(), as_float(t, "t", finite=True), spec, joint)
+        out = self._c.jacobian(th.tolist(), om.tolist(), t=as_float(t, "t", finite=True), torque=core_torque(spec, joint))
         return _finite_result(out, "Jacobian").reshape(2 * self.n, 2 * self.n)
 
     def hamilton(self, theta, p, t=0.0, torque=None, joint_torque=None):
         """Hamilton's equations: ``(theta_dot, p_dot)``, each of shape (..., N)."""
         th, pp = self._states(theta=theta, p=p)
         spec, joint = normalise_torque(torque, joint_torque, self.n)
-        td, pd = self._c.hamilton(th.ravel(), pp.ravel(), as_float(t, "t", finite=True), spec, joint)
+        td, pd = self._c.hamilton(th.ravel(), pp.ravel(), t=as_float(t, "t", finite=True), torque=core_torque(spec, joint))
         td, pd = _finite_result(td, "rates theta_dot"), _finite_result(pd, "rates p_dot")
         return td.reshape(th.shape), pd.reshape(th.shape)
 
@@ -213,9 +211,9 @@ class Chain:
         """Joint positions, shape (..., N, 2): row i is the far end of link i (the bob of a point
         mass); the pivot is the origin, y points up."""
         (th,) = self._states(theta=theta)
-        return self._c.positions(th.ravel(), False).reshape(th.shape + (2,))
+        return self._c.positions(th.ravel(), com=False).reshape(th.shape + (2,))
 
     def com_positions(self, theta) -> np.ndarray:
         """Centre-of-mass positions, shape (..., N, 2)."""
         (th,) = self._states(theta=theta)
-        return self._c.positions(th.ravel(), True).reshape(th.shape + (2,))
+        return self._c.positions(th.ravel(), com=True).reshape(th.shape + (2,))

@@ -7,10 +7,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import _core
+import multipendulum._core as _core
 from ._chain import Chain, as_state
 from ._convert import as_float, as_floats
-from ._torque import normalise_torque
+from ._lyapunov import lyapunov, trustworthy_until
+from ._torque import core_torque, normalise_torque, torque_object
+from .checkpoint import Archive, Writer, cadence, load_checkpoint
 from .errors import InputError, IntegrationError
 
 METHODS = tuple(_core.METHODS)
@@ -33,7 +35,8 @@ class Flip:
     def _spec(self, n):
         if self.link is not None and not (isinstance(self.link, (int, np.integer)) and 0 <= self.link < n):
             raise InputError(f"Flip.link must be an integer in [0, {n}) or None, got {self.link!r}")
-        return ("flip", None if self.link is None else int(self.link), _direction(self.direction), bool(self.terminal))
+        return _core.Event.flip(None if self.link is None else int(self.link), direction=_direction(self.direction),
+                                terminal=bool(self.terminal))
 
 
 @dataclass(frozen=True)
@@ -55,8 +58,8 @@ class Crossing:
             if a.shape != (n,):
                 raise InputError(f"Crossing.{name} must have {n} coefficients (one per link), got shape {a.shape}")
             coef.append(a.tolist())
-        return ("linear", coef[0], coef[1], as_float(self.constant, "Crossing.constant"), _direction(self.direction),
-                bool(self.terminal))
+        return _core.Event.linear(coef[0], coef[1], as_float(self.constant, "Crossing.constant"),
+                                  direction=_direction(self.direction), terminal=bool(self.terminal))
 
 
 @dataclass(frozen=True)
@@ -73,7 +76,7 @@ class Event:
     def _spec(self, n):
         if not callable(self.g):
             raise InputError(f"Event.g must be callable as g(t, theta, omega), got {type(self.g).__name__}")
-        return ("callable", self.g, _direction(self.direction), bool(self.terminal))
+        return _core.Event.function(self.g, direction=_direction(self.direction), terminal=bool(self.terminal))
 
 
 def _direction(d) -> int:
@@ -170,8 +173,6 @@ class Solution:
         the run (at most ``horizon`` seconds of it) and eps the run's own error level (dop853:
         its rtol; fixed-step methods: the measured energy error). ``inf`` for regular motion;
         None where it cannot be computed (a batch, or a torque given as a Python function)."""
-        from .chaos import lyapunov, trustworthy_until
-
         if self.theta.ndim != 2 or callable(self._torque) or self._joint:
             return None
         span = float(min(self.t[-1], horizon))
@@ -274,8 +275,6 @@ def simulate(chain: Chain, theta0, omega0, t_end, method=DEFAULTS["method"], dt=
                max_steps=int(max_steps), torque=spec, joint=joint, has_t_eval=t_eval is not None)
     writer = None
     if checkpoint is not None:
-        from .checkpoint import Writer, cadence
-
         if batch_shape:
             raise InputError(f"checkpoints are for single runs; theta0 has a batch axis, shape {th0.shape}")
         if spec is not None and spec[0] == "callable":
@@ -320,8 +319,8 @@ def _run(chain, th0, om0, run, t_eval, progress, event_specs=(), writer=None, re
     data = _core.simulate(chain._c, np.ascontiguousarray(th0, dtype=np.float64).ravel(),
                           np.ascontiguousarray(om0, dtype=np.float64).ravel(), run["t_end"], method=run["method"],
                           form=run["form"], dt=run["dt"], rtol=run["rtol"], atol=run["atol"],
-                          adaptive=run["adaptive"], t_eval=t_eval, max_steps=run["max_steps"], torque_spec=spec,
-                          joint=run["joint"], progress=progress, events=list(event_specs), checkpoint=ckpt,
+                          adaptive=run["adaptive"], t_eval=t_eval, max_steps=run["max_steps"],
+                          torque=core_torque(spec, run["joint"]), progress=progress, events=list(event_specs), checkpoint=ckpt,
                           resume=resume)
     wall = wall_before + time.perf_counter() - start
     if progress is not None:
@@ -331,9 +330,38 @@ def _run(chain, th0, om0, run, t_eval, progress, event_specs=(), writer=None, re
     sol = Solution(chain, run["method"], data["form"], data, batch_shape, stats, len(event_specs))
     sol._joint, sol._rtol = run["joint"], run["rtol"]
     if spec is not None and spec[0] != "callable":
-        from .checkpoint import torque_object
-
         sol._torque = torque_object(spec, chain.n)
     else:
         sol._torque = None
     return sol
+
+
+def resume(path, progress=None, checkpoint: bool = True, any_version: bool = False):
+    """Continue the run saved in the checkpoint archive ``path`` to its ``t_end`` and return its
+    :class:`~multipendulum.Solution`: all of it from t = 0, bit-for-bit the arrays the
+    uninterrupted run would have returned. ``checkpoint`` (default True): keep writing
+    checkpoints to the same archive at the same cadence. ``progress`` as for
+    :func:`~multipendulum.simulate`. Raises :class:`InputError` for a damaged archive or one of
+    another version (see :func:`load_checkpoint`).
+
+    >>> import multipendulum as mp, tempfile, os
+    >>> path = os.path.join(tempfile.mkdtemp(), "run.ckpt")
+    >>> chain = mp.Chain(lengths=[1, 1], masses=[1, 1])
+    >>> full = mp.simulate(chain, [2.0, 2.5], [0, 0], t_end=1.0, method="gauss6", dt=0.01,
+    ...                    checkpoint=path, checkpoint_every=40)
+    >>> again = mp.resume(path)      # from the last checkpoint, step 80, to t_end
+    >>> bool((again.theta == full.theta).all())
+    True
+    """
+    archive = path if isinstance(path, Archive) else load_checkpoint(path, any_version=any_version)
+    meta, a = archive.metadata, archive.arrays
+    run = meta["run"]
+    chain = archive.chain()
+    t_eval = a["t_eval"] if run["has_t_eval"] else None
+    every = meta["checkpoint"]
+    writer = None
+    if checkpoint:
+        writer = Writer(archive.path, chain, a["theta0"], a["omega0"], t_eval, run, every["every_steps"],
+                        every["every_seconds"], info=meta.get("info"), wall_before=float(meta.get("wall_time", 0.0)))
+    return _run(chain, a["theta0"], a["omega0"], run, t_eval, progress, writer=writer, resume=archive.state(),
+                wall_before=float(meta.get("wall_time", 0.0)))

@@ -6,6 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+import multipendulum._core as _core
+
 from ._convert import as_floats
 from .errors import InputError
 
@@ -91,3 +93,36 @@ def normalise_torque(torque, joint_torque, n):
         i = int(np.argwhere(~np.isfinite(a))[0][0])
         raise InputError(f"{name}[{i}] must be finite, got {a[i]}")
     return ("constant", a.tolist()), joint
+
+
+def torque_object(spec, n: int):
+    """The user-level torque (array, Sinusoid, Table) for a built-in spec as the core takes it."""
+    if spec is None:
+        return None
+    kind = spec[0]
+    if kind == "constant":
+        return np.asarray(spec[1], dtype=np.float64)
+    if kind == "sinusoid":
+        return Sinusoid(*(np.asarray(v, dtype=np.float64) for v in spec[1:5]))
+    if kind == "table":
+        t = np.asarray(spec[1], dtype=np.float64)
+        return Table(t, np.asarray(spec[2], dtype=np.float64).reshape(t.size, n), kind=spec[3])
+    raise InputError(f"checkpoint: unknown torque kind {kind!r}")
+
+
+def core_torque(spec, joint: bool):
+    """The core's typed torque (:class:`multipendulum._core.Torque`) for a normalised spec, in
+    the joint-motor convention when ``joint``; None for no torque. Specs stay plain data (a
+    checkpoint keeps them as JSON); only this crosses into the core."""
+    if spec is None:
+        return None
+    kind = spec[0]
+    if kind == "constant":
+        return _core.Torque.constant(spec[1], joint=joint)
+    if kind == "sinusoid":
+        return _core.Torque.sinusoid(*spec[1:5], joint=joint)
+    if kind == "table":
+        return _core.Torque.table(spec[1], spec[2], spec[3], joint=joint)
+    if kind == "callable":
+        return _core.Torque.function(spec[1], with_state=spec[2], joint=joint)
+    raise InputError(f"unknown torque kind {kind!r}")

@@ -6,75 +6,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import _core
+import multipendulum._core as _core
 from ._chain import Chain, as_state, check_chain
 from ._convert import as_float, as_floats
-from ._torque import normalise_torque
+from ._torque import core_torque, normalise_torque
+from ._lyapunov import LyapunovResult, _link, lyapunov, trustworthy_until
+from ._simulate import Crossing, Flip, simulate
 from .errors import InputError
 
 __all__ = ["EnsembleResult", "ensemble", "PoincareSection", "poincare", "plot_poincare", "LyapunovResult", "lyapunov", "trustworthy_until", "flip_energy_threshold", "flip_times", "flip_map", "FlipMap"]
-
-
-@dataclass(frozen=True)
-class LyapunovResult:
-    """``exponents`` (k,) in 1/s, largest first; ``times`` (R,) of the re-orthonormalisations and
-    ``history`` (R, k) of the running estimates, to judge convergence."""
-
-    exponents: np.ndarray
-    times: np.ndarray
-    history: np.ndarray
-
-    @property
-    def largest(self) -> float:
-        return float(self.exponents[0])
-
-
-def _link(link, n):
-    if link is None:
-        return None
-    if not isinstance(link, (int, np.integer)) or not 0 <= link < n:
-        raise InputError(f"link must be an integer in [0, {n}) or None (any link), got {link!r}")
-    return int(link)
-
-
-def lyapunov(chain: Chain, theta0, omega0, t_end, dt=0.005, k=None, renorm_every=10, torque=None) -> LyapunovResult:
-    """The ``k`` largest Lyapunov exponents (default: the full spectrum, k = 2N).
-
-    Integrates the variational (tangent) equations of the Lagrangian form with rk4 at step ``dt``
-    and re-orthonormalises the tangent vectors every ``renorm_every`` steps (Benettin et al. 1980).
-    For the undriven chain the spectrum comes in +/- pairs summing to ~0. ``torque`` may depend
-    on time (a constant, :class:`Sinusoid` or :class:`Table`).
-
-    >>> import multipendulum as mp
-    >>> res = mp.lyapunov(mp.Chain([1, 1], [1, 1]), [2.0, 2.5], [0, 0], t_end=100.0)
-    >>> bool(res.largest > 0.5)
-    True
-    """
-    check_chain(chain)
-    th0, om0 = as_state(theta0, "theta0", chain.n), as_state(omega0, "omega0", chain.n)
-    if th0.ndim != 1 or om0.ndim != 1:
-        raise InputError(f"theta0 and omega0 must have shape ({chain.n},)")
-    k = 2 * chain.n if k is None else k
-    if isinstance(k, bool) or not isinstance(k, (int, np.integer)):
-        raise InputError(f"k must be an integer between 1 and 2N = {2 * chain.n}, got {k!r}")
-    if not 1 <= k <= 2 * chain.n:
-        raise InputError(f"k must be between 1 and 2N = {2 * chain.n}, got {k}")
-    if isinstance(renorm_every, bool) or not isinstance(renorm_every, (int, np.integer)) \
-            or not 1 <= renorm_every < 2**64:
-        raise InputError(f"renorm_every must be a positive integer (steps), got {renorm_every!r}")
-    spec, joint = normalise_torque(torque, None, chain.n)
-    exps, times, hist = _core.lyapunov(chain._c, th0.tolist(), om0.tolist(), as_float(t_end, "t_end"),
-                                       dt=as_float(dt, "dt"), k=int(k), renorm_every=int(renorm_every),
-                                       torque_spec=spec)
-    return LyapunovResult(exps, times, hist.reshape(times.size, int(k)))
-
-
-def trustworthy_until(lyapunov_exponent: float, tolerance: float = 1e-2, eps: float = 1e-16) -> float:
-    """How long a chaotic run stays within ``tolerance`` of the true trajectory when it starts
-    off by ``eps`` (round-off): ``ln(tolerance / eps) / lambda_max``; infinite when lambda <= 0."""
-    if lyapunov_exponent <= 0:
-        return float("inf")
-    return float(np.log(tolerance / eps) / lyapunov_exponent)
 
 
 def flip_energy_threshold(chain: Chain, link=None) -> float:
@@ -95,7 +35,7 @@ def flip_times(chain: Chain, theta0, omega0=None, t_max=10.0, dt=0.01, link=None
         raise InputError(f"theta0 and omega0 must have the same shape, got {th0.shape} and {om0.shape}")
     spec, _ = normalise_torque(torque, None, chain.n)
     out = _core.first_flips(chain._c, th0.ravel(), om0.ravel(), as_float(t_max, "t_max"), dt=as_float(dt, "dt"),
-                            link=_link(link, chain.n), torque_spec=spec)
+                            link=_link(link, chain.n), torque=core_torque(spec, False))
     return out.reshape(th0.shape[:-1])
 
 
@@ -185,7 +125,6 @@ def poincare(chain: Chain, theta0, omega0, t_end, through=0, record=1, rtol=1e-1
     """Poincaré sections: ``(theta_record, p_record)`` whenever ``theta_through`` crosses 0 upward,
     located by root finding on dop853's dense output. ``theta0``/``omega0`` may carry a batch axis
     (several energies), run in parallel; returns a list of :class:`PoincareSection`."""
-    from ._simulate import Crossing, simulate
 
     check_chain(chain)
     n = chain.n
@@ -251,7 +190,6 @@ def ensemble(chain: Chain, theta0, omega0, t_end, method="dop853", dt=None, rtol
     """Run B trajectories (rows of ``theta0``, ``omega0``: (B, N)) in parallel in the Rust core
     and keep only their final states and per-trajectory reductions: memory O(B N), not
     O(B N steps). Results are identical whatever the number of threads."""
-    from ._simulate import Flip, simulate
 
     check_chain(chain)
     t_end = as_float(t_end, "t_end")

@@ -16,7 +16,8 @@ integrator's typed memory, the initial state and the output rows so far), so no 
 be left out by a hand-written list. It is written atomically (a temporary file beside it, fsynced, renamed over it), so
 a kill at any moment leaves the previous archive or the new one, never half of one.
 
-Not checkpointable, and refused with a clear message: batch runs, a torque given as a Python
+Resuming is :func:`multipendulum.resume` (in :mod:`multipendulum._simulate`, above this
+module). Not checkpointable, and refused with a clear message: batch runs, a torque given as a Python
 function, and events (their tracker's state is not saved).
 """
 from __future__ import annotations
@@ -30,9 +31,10 @@ from typing import Any, Dict, Optional
 
 import numpy as np
 
+from ._torque import torque_object
 from .errors import InputError
 
-__all__ = ["resume", "load_checkpoint", "Archive", "FORMAT", "FORMAT_VERSION"]
+__all__ = ["load_checkpoint", "Archive", "Writer", "FORMAT", "FORMAT_VERSION"]
 
 FORMAT = "multipendulum-checkpoint"
 FORMAT_VERSION = 2
@@ -46,7 +48,7 @@ _RUN_KEYS = ("method", "form", "t_end", "dt", "rtol", "atol", "adaptive", "max_s
 
 
 def _version() -> str:
-    from . import __version__
+    from ._core import __version__
 
     return str(__version__)
 
@@ -96,23 +98,6 @@ class Archive:
 # Writing
 
 
-def torque_object(spec, n: int):
-    """The user-level torque (array, Sinusoid, Table) for a built-in spec as the core takes it."""
-    from ._torque import Sinusoid, Table
-
-    if spec is None:
-        return None
-    kind = spec[0]
-    if kind == "constant":
-        return np.asarray(spec[1], dtype=np.float64)
-    if kind == "sinusoid":
-        return Sinusoid(*(np.asarray(v, dtype=np.float64) for v in spec[1:5]))
-    if kind == "table":
-        t = np.asarray(spec[1], dtype=np.float64)
-        return Table(t, np.asarray(spec[2], dtype=np.float64).reshape(t.size, n), kind=spec[3])
-    raise InputError(f"checkpoint: unknown torque kind {kind!r}")
-
-
 class Writer:
     """Called by the core with each checkpoint; writes the archive atomically. Keeps the fixed
     part (chain, arguments, t_eval) and adds the state, the counters and the wall time so far."""
@@ -137,7 +122,7 @@ class Writer:
         self.saved = 0
 
     def __call__(self, state: bytes, t: float, steps: int) -> None:
-        from .results import atomic_path
+        from ._files import atomic_path
 
         meta = dict(self.meta)
         meta["created"] = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
@@ -233,7 +218,7 @@ def load_checkpoint(path, any_version: bool = False) -> Archive:
         if a.dtype != want or a.ndim != (0 if k == "g" else 1):
             raise InputError(f"{name}: member {k} must be a {np.dtype(want).name} {'scalar' if k == 'g' else 'vector'}, "
                              f"got {a.dtype} of shape {a.shape}")
-    from . import _core
+    import multipendulum._core as _core
 
     try:
         t, steps = _core.checkpoint_time(arrays["state"].tobytes())
@@ -243,36 +228,3 @@ def load_checkpoint(path, any_version: bool = False) -> Archive:
         raise InputError(f"{name}: the run state is at t = {t} after {steps} steps, the metadata says "
                          f"t = {meta['state']['t']} after {meta['state']['steps']}")
     return Archive(meta, arrays, path)
-
-
-def resume(path, progress=None, checkpoint: bool = True, any_version: bool = False):
-    """Continue the run saved in the checkpoint archive ``path`` to its ``t_end`` and return its
-    :class:`~multipendulum.Solution`: all of it from t = 0, bit-for-bit the arrays the
-    uninterrupted run would have returned. ``checkpoint`` (default True): keep writing
-    checkpoints to the same archive at the same cadence. ``progress`` as for
-    :func:`~multipendulum.simulate`. Raises :class:`InputError` for a damaged archive or one of
-    another version (see :func:`load_checkpoint`).
-
-    >>> import multipendulum as mp, tempfile, os
-    >>> path = os.path.join(tempfile.mkdtemp(), "run.ckpt")
-    >>> chain = mp.Chain(lengths=[1, 1], masses=[1, 1])
-    >>> full = mp.simulate(chain, [2.0, 2.5], [0, 0], t_end=1.0, method="gauss6", dt=0.01,
-    ...                    checkpoint=path, checkpoint_every=40)
-    >>> again = mp.resume(path)      # from the last checkpoint, step 80, to t_end
-    >>> bool((again.theta == full.theta).all())
-    True
-    """
-    from ._simulate import _run
-
-    archive = path if isinstance(path, Archive) else load_checkpoint(path, any_version=any_version)
-    meta, a = archive.metadata, archive.arrays
-    run = meta["run"]
-    chain = archive.chain()
-    t_eval = a["t_eval"] if run["has_t_eval"] else None
-    every = meta["checkpoint"]
-    writer = None
-    if checkpoint:
-        writer = Writer(archive.path, chain, a["theta0"], a["omega0"], t_eval, run, every["every_steps"],
-                        every["every_seconds"], info=meta.get("info"), wall_before=float(meta.get("wall_time", 0.0)))
-    return _run(chain, a["theta0"], a["omega0"], run, t_eval, progress, writer=writer, resume=archive.state(),
-                wall_before=float(meta.get("wall_time", 0.0)))

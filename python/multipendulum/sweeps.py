@@ -23,6 +23,16 @@ distributed cluster the path must be on a file system every worker sees. An exis
 replaced only when it is an empty directory or a store written here before (anything else is
 refused, never wiped), and a run that fails or is interrupted removes its store.
 
+``progress``: True for a bar on stderr (tqdm's when installed), or a callable given the fraction
+of tasks done (see :mod:`multipendulum._progress`); on a ``dask.distributed`` cluster it counts
+the chunks as their results arrive.
+
+Limits: a result gathered into this process (no ``zarr``) is checked against the memory the
+core allows before any task starts, and so are the chunks that run at once on the local
+schedulers; the advice is to write to Zarr or use smaller chunks. A trajectory's length is
+bounded as for :func:`multipendulum.flip_times` (10^9 steps); the number of trajectories is not:
+that is what a cluster is for.
+
 Dask, ``distributed`` (for addresses) and Zarr are optional: ``pip install 'multipendulum[dask]'``.
 """
 from __future__ import annotations
@@ -36,7 +46,10 @@ from typing import Any, Dict, Iterator, Optional, Tuple, Union
 
 import numpy as np
 
+import multipendulum._core as _core
 from ._chain import Chain, as_state
+from ._progress import check as _check_progress
+from ._progress import reporter
 from .chaos import FlipMap, _check_vary, _grid, flip_threshold, flip_times
 from .errors import InputError
 
@@ -101,6 +114,54 @@ def _scheduler(scheduler) -> Iterator[Dict[str, Any]]:
                      f"got {type(scheduler).__name__}")
 
 
+class _LocalProgress:
+    """Reports the fraction of a local schedule's tasks finished (Dask's scheduler callbacks run
+    in the scheduling thread, for the threaded, synchronous and process schedulers alike)."""
+
+    def __init__(self, report):
+        from dask.callbacks import Callback
+
+        outer = self
+
+        class _Hook(Callback):
+            def _start_state(self, dsk, state):
+                outer.total = max(1, len(state["ready"]) + len(state["waiting"]) + len(state.get("running", ())))
+                outer.done = 0
+
+            def _posttask(self, key, result, dsk, state, worker_id):
+                outer.done += 1
+                outer.report(min(outer.done / outer.total, 1.0))
+
+        self.report, self.total, self.done = report, 1, 0
+        self.hook = _Hook()
+
+
+def _compute(dask, how, report, *collections):
+    """``dask.compute(*collections, **how)``, reporting progress to ``report`` (or not, if None)."""
+    if report is None:
+        return dask.compute(*collections, **how)
+    scheduler = how["scheduler"]
+    if isinstance(scheduler, str):
+        with _LocalProgress(report).hook:
+            return dask.compute(*collections, **how)
+    from distributed import as_completed, futures_of
+
+    persisted = scheduler.persist(list(collections))
+    futures = futures_of(persisted)
+    for done, _ in enumerate(as_completed(futures, loop=scheduler.loop), start=1):
+        report(done / max(1, len(futures)))
+    return dask.compute(*persisted, scheduler=scheduler)
+
+
+def _check_chunks(rows: int, cols: int, n: int, n_chunks: int) -> None:
+    """The chunks that run at once in this process (one per core with local threads): their
+    initial states, energies and flip times, before they are made."""
+    at_once = min(n_chunks, os.cpu_count() or 1)
+    _core.check_memory(float(rows) * cols * (2 * n + 3) * 8.0 * at_once,
+                       f"{at_once} chunks of {rows} x {cols} initial states at once",
+                       "use smaller chunks (chunks=rows or (rows, columns))")
+
+
 def _positive_int(value, name) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
         raise InputError(f"{name} must be a positive integer, got {value!r}")
@@ -154,7 +215,7 @@ def _times_block(theta, omega, chain, t_max, dt, link, torque):
 
 
 def sweep(chain: Chain, theta0, omega0=None, t_max=10.0, dt=0.01, link=None, torque=None, chunks=None,
-          scheduler=None, zarr=None):
+          scheduler=None, zarr=None, progress=None):
     """:func:`multipendulum.flip_times` over a large batch of initial states, on Dask.
 
     ``theta0`` (and ``omega0``, default rest) of shape (B, ..., N) is split along its first axis
@@ -162,7 +223,7 @@ def sweep(chain: Chain, theta0, omega0=None, t_max=10.0, dt=0.01, link=None, tor
     chunk); each chunk is one task. Returns the flip times, shape (B, ...), ``inf`` where link
     ``link`` (None: any link) never went over the top by ``t_max``: a NumPy array, or the Zarr
     array written at ``zarr`` when given. ``torque`` must pickle to reach other processes (the
-    built-ins and arrays do). See the module docstring for ``scheduler``.
+    built-ins and arrays do). See the module docstring for ``scheduler`` and ``progress``.
 
     >>> import numpy as np, multipendulum as mp
     >>> chain = mp.Chain([1, 1], [1, 1])
@@ -171,6 +232,7 @@ def sweep(chain: Chain, theta0, omega0=None, t_max=10.0, dt=0.01, link=None, tor
     True
     """
     dask, da = _dask()
+    _check_progress(progress)
     if not isinstance(chain, Chain):
         raise InputError(f"chain must be a multipendulum.Chain, got {type(chain).__name__}")
     th0 = as_state(theta0, "theta0", chain.n)
@@ -185,21 +247,23 @@ def sweep(chain: Chain, theta0, omega0=None, t_max=10.0, dt=0.01, link=None, tor
     per_row = max(1, math.prod(th0.shape[1:-1]))
     rows = max(1, DEFAULT_CHUNK_SIZE // per_row) if chunks is None else _positive_int(chunks, "chunks")
     block = (rows,) + th0.shape[1:]
+    _check_chunks(rows, per_row, chain.n, -(-th0.shape[0] // rows))
     th = da.from_array(th0, chunks=block)
     om = da.from_array(om0, chunks=block)
     times = da.map_blocks(_times_block, th, om, chain, float(t_max), float(dt), link, torque,
                           drop_axis=th.ndim - 1, dtype=np.float64, meta=np.empty((0,) * (th.ndim - 1)))
     if path is None:
-        with _scheduler(scheduler) as how:
-            (out,) = dask.compute(times, **how)
+        with _scheduler(scheduler) as how, reporter(progress, "sweep") as report:
+            (out,) = _compute(dask, how, report, times)
         return out
     import zarr as _zarr
 
     attrs = {"t_max": float(t_max), "dt": float(dt), "link": None if link is None else int(link),
              "chain": chain.to_dict()}
     # The store outside the scheduler: on failure every task has stopped before it is removed.
-    with _fresh_store(path, "multipendulum.sweep", attrs), _scheduler(scheduler) as how:
-        dask.compute(da.to_zarr(times, path, component="times", compute=False), **how)
+    with _fresh_store(path, "multipendulum.sweep", attrs), _scheduler(scheduler) as how, \
+            reporter(progress, "sweep") as report:
+        _compute(dask, how, report, da.to_zarr(times, path, component="times", compute=False))
     return _zarr.open_group(path, mode="r")["times"]
 
 
@@ -232,7 +296,8 @@ def _chunk_shape(chunks, ny, nx) -> Tuple[int, int]:
 
 
 def sweep_flip_map(chain: Chain, x, y, t_max=10.0, dt=0.01, vary=("theta", 0, "theta", 1), base_theta=None,
-                   base_omega=None, link=None, torque=None, chunks=None, scheduler=None, zarr=None) -> FlipMap:
+                   base_omega=None, link=None, torque=None, chunks=None, scheduler=None, zarr=None,
+                   progress=None) -> FlipMap:
     """:func:`multipendulum.flip_map` on Dask, for grids too large for one process.
 
     Same arguments and the same result (bit for bit) as ``flip_map``; in addition ``chunks``,
@@ -244,9 +309,12 @@ def sweep_flip_map(chain: Chain, x, y, t_max=10.0, dt=0.01, vary=("theta", 0, "t
     With ``zarr``, the store gets arrays ``times`` and ``allowed`` (written chunk by chunk by
     the tasks) plus ``x`` and ``y`` and the attributes ``t_max`` and ``threshold``; the returned
     map's ``times`` and ``allowed`` are then the on-disk Zarr arrays (index them to read a part).
-    :func:`open_flip_map` opens such a store again.
+    :func:`open_flip_map` opens such a store again. Without ``zarr`` the whole map is gathered
+    here: refused before any task starts when it would not fit in memory (advice: ``zarr``).
+    ``progress`` as for :func:`sweep`.
     """
     dask, da = _dask()
+    _check_progress(progress)
     if not isinstance(chain, Chain):
         raise InputError(f"chain must be a multipendulum.Chain, got {type(chain).__name__}")
     x, y = np.asarray(x, dtype=float).ravel(), np.asarray(y, dtype=float).ravel()
@@ -263,6 +331,13 @@ def sweep_flip_map(chain: Chain, x, y, t_max=10.0, dt=0.01, vary=("theta", 0, "t
     threshold = flip_threshold(chain, link, torque)
     flip_times(chain, np.zeros((0, n)), t_max=t_max, dt=dt, link=link, torque=torque)  # checks, on no states
     rows, cols = _chunk_shape(chunks, y.size, x.size)
+    rows, cols = min(rows, y.size), min(cols, x.size)
+    _check_chunks(rows, cols, n, -(-y.size // rows) * -(-x.size // cols))
+    if path is None:
+        # Gathered here: the times (8 bytes) and flags (1) of every cell, and Dask's pieces of them
+        # until they are joined.
+        _core.check_memory(float(x.size) * y.size * 9.0 * 2, f"gathering a flip map of {y.size} x {x.size} cells",
+                           "pass zarr=PATH to write it chunk by chunk instead (multipendulum fractal --zarr)")
     Y = da.from_array(y, chunks=rows)
     X = da.from_array(x, chunks=cols)
     kernel = functools.partial(_map_times_block, chain=chain, vary=vary, th_base=th_base, om_base=om_base,
@@ -272,18 +347,19 @@ def sweep_flip_map(chain: Chain, x, y, t_max=10.0, dt=0.01, vary=("theta", 0, "t
     times = da.blockwise(kernel, "ij", Y, "i", X, "j", dtype=np.float64, meta=np.empty((0, 0)))
     allowed = da.blockwise(energy, "ij", Y, "i", X, "j", dtype=bool, meta=np.empty((0, 0), dtype=bool))
     if path is None:
-        with _scheduler(scheduler) as how:
-            t, a = dask.compute(times, allowed, **how)
+        with _scheduler(scheduler) as how, reporter(progress, "flip map") as report:
+            t, a = _compute(dask, how, report, times, allowed)
         return FlipMap(x, y, t, a, float(t_max), threshold)
     attrs = {"t_max": float(t_max), "dt": float(dt), "threshold": threshold, "vary": list(vary),
              "base_theta": th_base.tolist(), "base_omega": om_base.tolist(),
              "link": None if link is None else int(link), "chain": chain.to_dict()}
-    with _fresh_store(path, "multipendulum.flip_map", attrs), _scheduler(scheduler) as how:
+    with _fresh_store(path, "multipendulum.flip_map", attrs), _scheduler(scheduler) as how, \
+            reporter(progress, "flip map") as report:
         stores = [da.to_zarr(arr, path, component=name, compute=False)
                   for name, arr in (("times", times), ("allowed", allowed))]
         stores += [da.to_zarr(da.from_array(v, chunks=v.size), path, component=name, compute=False)
                    for name, v in (("x", x), ("y", y))]
-        dask.compute(*stores, **how)
+        _compute(dask, how, report, *stores)
     return open_flip_map(path)
 
 

@@ -65,6 +65,11 @@ pub fn limits() -> Vec<Fact> {
     ]
 }
 
+/// The routes to the accelerations and the most links each takes (`None`: any).
+pub fn algorithms() -> Vec<(&'static str, Option<usize>)> {
+    crate::dynamics::reference::Algorithm::ALL.iter().map(|a| (a.name(), a.max_links())).collect()
+}
+
 /// The forms' names, in order.
 pub fn forms() -> Vec<&'static str> {
     Form::ALL.iter().map(|f| f.name()).collect()

@@ -5,11 +5,11 @@ use std::cell::RefCell;
 use multipendulum_core as core;
 use numpy::{PyArray1, PyReadonlyArray1};
 use pyo3::prelude::*;
-use pyo3::types::PyTuple;
 
-use core::{reference, Chain as CoreChain, Error, TorqueSource, Workspace};
+use core::reference::{self, Algorithm};
+use core::{Chain as CoreChain, Error, TorqueSource, Workspace};
 
-use crate::torque::{torque, torque_error};
+use crate::torque::{torque_error, PyTorque};
 use crate::{slice, to_py, vec_out, InputError};
 
 pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -89,15 +89,14 @@ impl PyChain {
     }
 
     /// Accelerations of each row; `algorithm` is "recursive" (O(N)), "cholesky" or "cramer".
-    #[pyo3(signature = (theta, omega, t, torque_spec, joint, algorithm))]
+    #[pyo3(signature = (theta, omega, *, t=0.0, torque=None, algorithm="recursive"))]
     fn accelerations<'py>(
         &self,
         py: Python<'py>,
         theta: PyReadonlyArray1<'py, f64>,
         omega: PyReadonlyArray1<'py, f64>,
         t: f64,
-        torque_spec: Option<Bound<'py, PyTuple>>,
-        joint: bool,
+        torque: Option<PyRef<'py, PyTorque>>,
         algorithm: &str,
     ) -> PyResult<Bound<'py, PyArray1<f64>>> {
         let c = &self.inner;
@@ -106,8 +105,10 @@ impl PyChain {
         core::error::check_finite("theta", theta).map_err(|e| to_py(py, e))?;
         core::error::check_finite("omega", omega).map_err(|e| to_py(py, e))?;
         let b = rows("theta", theta.len(), n)?;
+        let algorithm = Algorithm::parse(algorithm).map_err(|e| to_py(py, e))?;
+        algorithm.check(n).map_err(|e| to_py(py, e))?;
         let slot = RefCell::new(None);
-        let mut src = torque(n, torque_spec.as_ref(), joint, &slot)?;
+        let mut src = crate::torque::torque(py, n, torque.as_deref(), &slot)?;
         let mut ws = Workspace::new(n);
         let (mut tau, mut out) = (vec![0.0; n], vec![0.0; b * n]);
         for i in 0..b {
@@ -118,14 +119,9 @@ impl PyChain {
             let o = &mut out[i * n..(i + 1) * n];
             let singular = |s: core::Singular| to_py(py, Error::integration(t, s.reason()));
             match algorithm {
-                "recursive" => c.accelerations_into(th, om, &tau, o, &mut ws).map_err(singular)?,
-                "cholesky" => o.copy_from_slice(&reference::accelerations_cholesky(c, th, om, &tau).map_err(singular)?),
-                "cramer" => o.copy_from_slice(&reference::accelerations_cramer(c, th, om, &tau).map_err(singular)?),
-                other => {
-                    return Err(InputError::new_err(format!(
-                        "algorithm must be one of recursive, cholesky, cramer, got {other:?}"
-                    )))
-                }
+                Algorithm::Recursive => c.accelerations_into(th, om, &tau, o, &mut ws).map_err(singular)?,
+                Algorithm::Cholesky => o.copy_from_slice(&reference::accelerations_cholesky(c, th, om, &tau).map_err(singular)?),
+                Algorithm::Cramer => o.copy_from_slice(&reference::accelerations_cramer(c, th, om, &tau).map_err(singular)?),
             }
         }
         Ok(vec_out(py, out))
@@ -134,15 +130,14 @@ impl PyChain {
     /// The exact Jacobian of the Lagrangian right-hand side `(omega, theta_ddot)` with respect to
     /// `(theta, omega)` (row-major 2N x 2N), from the variational equations; torques are taken as
     /// depending on time only.
-    #[pyo3(signature = (theta, omega, t, torque_spec, joint))]
+    #[pyo3(signature = (theta, omega, *, t=0.0, torque=None))]
     fn jacobian<'py>(
         &self,
         py: Python<'py>,
         theta: Vec<f64>,
         omega: Vec<f64>,
         t: f64,
-        torque_spec: Option<Bound<'py, PyTuple>>,
-        joint: bool,
+        torque: Option<PyRef<'py, PyTorque>>,
     ) -> PyResult<Bound<'py, PyArray1<f64>>> {
         let c = &self.inner;
         let n = c.n();
@@ -150,7 +145,7 @@ impl PyChain {
         c.check_state("theta", &theta).map_err(err)?;
         c.check_state("omega", &omega).map_err(err)?;
         let slot = RefCell::new(None);
-        let mut src = torque(n, torque_spec.as_ref(), joint, &slot)?;
+        let mut src = crate::torque::torque(py, n, torque.as_deref(), &slot)?;
         let mut ws = Workspace::new(n);
         let mut tau = vec![0.0; n];
         if src.active() {
@@ -163,22 +158,21 @@ impl PyChain {
     }
 
     /// `(theta_dot, p_dot)` of Hamilton's equations for each row.
-    #[pyo3(signature = (theta, p, t, torque_spec, joint))]
+    #[pyo3(signature = (theta, p, *, t=0.0, torque=None))]
     fn hamilton<'py>(
         &self,
         py: Python<'py>,
         theta: PyReadonlyArray1<'py, f64>,
         p: PyReadonlyArray1<'py, f64>,
         t: f64,
-        torque_spec: Option<Bound<'py, PyTuple>>,
-        joint: bool,
+        torque: Option<PyRef<'py, PyTorque>>,
     ) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>)> {
         let c = &self.inner;
         let n = c.n();
         let (theta, p) = (slice("theta", &theta)?, slice("p", &p)?);
         let b = rows("theta", theta.len(), n)?;
         let slot = RefCell::new(None);
-        let mut src = torque(n, torque_spec.as_ref(), joint, &slot)?;
+        let mut src = crate::torque::torque(py, n, torque.as_deref(), &slot)?;
         let mut ws = Workspace::new(n);
         let (mut td, mut pd) = (vec![0.0; b * n], vec![0.0; b * n]);
         for i in 0..b {
@@ -242,6 +236,7 @@ impl PyChain {
     }
 
     /// Joint positions (`com=False`) or centres of mass (`com=True`), 2N numbers per row.
+    #[pyo3(signature = (theta, *, com=false))]
     fn positions<'py>(&self, py: Python<'py>, theta: PyReadonlyArray1<'py, f64>, com: bool) -> PyResult<Bound<'py, PyArray1<f64>>> {
         let c = &self.inner;
         let n = c.n();

@@ -2,12 +2,11 @@
 use multipendulum_core as core;
 use numpy::{PyArray1, PyReadonlyArray1};
 use pyo3::prelude::*;
-use pyo3::types::PyTuple;
 
 use core::Watch;
 
 use crate::chain::PyChain;
-use crate::torque::builtin_only;
+use crate::torque::{builtin_only, PyTorque};
 use crate::{interruptible, slice, to_py, vec_out};
 
 pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -19,7 +18,7 @@ pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
 
 /// Lyapunov exponents by the variational equations; see `multipendulum_core::chaos::lyapunov`.
 #[pyfunction]
-#[pyo3(signature = (chain, theta0, omega0, t_end, *, dt, k, renorm_every, torque_spec=None, progress=None))]
+#[pyo3(signature = (chain, theta0, omega0, t_end, *, dt, k, renorm_every, torque=None, progress=None))]
 #[allow(clippy::too_many_arguments)]
 fn lyapunov<'py>(
     py: Python<'py>,
@@ -30,11 +29,11 @@ fn lyapunov<'py>(
     dt: f64,
     k: usize,
     renorm_every: u64,
-    torque_spec: Option<Bound<'py, PyTuple>>,
+    torque: Option<PyRef<'py, PyTorque>>,
     progress: Option<Py<PyAny>>,
 ) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>)> {
     let c = &chain.inner;
-    let torque = builtin_only(py, c.n(), torque_spec.as_ref(), "lyapunov")?;
+    let torque = builtin_only(py, c.n(), torque.as_deref(), "lyapunov")?;
     let watch = Watch::new();
     let out = interruptible(py, &watch, progress.as_ref(), || {
         core::chaos::lyapunov(c, &theta0, &omega0, t_end, dt, k, renorm_every, torque, &watch)
@@ -45,7 +44,7 @@ fn lyapunov<'py>(
 
 /// First-flip times of the rows of flat `theta0`/`omega0` (+inf: never), in parallel.
 #[pyfunction]
-#[pyo3(signature = (chain, theta0, omega0, t_max, *, dt, link=None, torque_spec=None, progress=None))]
+#[pyo3(signature = (chain, theta0, omega0, t_max, *, dt, link=None, torque=None, progress=None))]
 #[allow(clippy::too_many_arguments)]
 fn first_flips<'py>(
     py: Python<'py>,
@@ -55,11 +54,11 @@ fn first_flips<'py>(
     t_max: f64,
     dt: f64,
     link: Option<usize>,
-    torque_spec: Option<Bound<'py, PyTuple>>,
+    torque: Option<PyRef<'py, PyTorque>>,
     progress: Option<Py<PyAny>>,
 ) -> PyResult<Bound<'py, PyArray1<f64>>> {
     let c = &chain.inner;
-    let torque = builtin_only(py, c.n(), torque_spec.as_ref(), "flip maps")?;
+    let torque = builtin_only(py, c.n(), torque.as_deref(), "flip maps")?;
     let (theta0, omega0) = (slice("theta0", &theta0)?, slice("omega0", &omega0)?);
     let watch = Watch::units((theta0.len() / c.n().max(1)) as u64);
     let out = interruptible(py, &watch, progress.as_ref(), || {
@@ -70,7 +69,7 @@ fn first_flips<'py>(
 }
 
 #[pyfunction]
-#[pyo3(signature = (chain, link))]
+#[pyo3(signature = (chain, link=None))]
 fn flip_energy_threshold(py: Python<'_>, chain: &PyChain, link: Option<usize>) -> PyResult<f64> {
     core::chaos::flip_energy_threshold(&chain.inner, link).map_err(|e| to_py(py, e))
 }

@@ -36,6 +36,11 @@ pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     }
     m.add("LIMITS", limits)?;
     m.add("FORMS", facts::forms())?;
+    let algorithms = PyDict::new(py);
+    for (name, max_links) in facts::algorithms() {
+        algorithms.set_item(name, max_links)?;
+    }
+    m.add("ALGORITHMS", algorithms)?;
     m.add_function(wrap_pyfunction!(check_memory, m)?)?;
     Ok(())
 }

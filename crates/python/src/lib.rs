@@ -90,6 +90,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add("InputError", m.py().get_type::<InputError>())?;
     m.add("IntegrationError", m.py().get_type::<IntegrationError>())?;
+    torque::register(m)?;
     chain::register(m)?;
     run::register(m)?;
     chaos::register(m)?;

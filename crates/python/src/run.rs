@@ -6,17 +6,18 @@ use std::time::{Duration, Instant};
 use multipendulum_core as core;
 use numpy::PyReadonlyArray1;
 use pyo3::prelude::*;
-use pyo3::types::{PyBytes, PyTuple};
+use pyo3::types::PyBytes;
 
 use core::{Error, Form, Method, Settings, Watch};
 
 use crate::chain::PyChain;
-use crate::torque::{torque, torque_error, AnyTorque};
+use crate::torque::{torque_error, AnyTorque, PyTorque};
 use crate::{interruptible, slice, to_py, vec_out, InputError};
 
 pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(simulate, m)?)?;
     m.add_function(wrap_pyfunction!(checkpoint_time, m)?)?;
+    m.add_class::<PyEventSpec>()?;
     Ok(())
 }
 
@@ -106,28 +107,60 @@ impl core::EventFn for PyEvent {
 
 type EventErrors = std::sync::Arc<std::sync::Mutex<Option<PyErr>>>;
 
-/// An event from the Python layer's normalised spec: `("flip", link | None, direction, terminal)`,
-/// `("linear", theta_coefficients, omega_coefficients, constant, direction, terminal)` or
-/// `("callable", g, direction, terminal)`.
-fn event_spec(spec: &Bound<'_, PyTuple>, errors: &EventErrors) -> PyResult<core::EventSpec> {
-    let kind: String = spec.get_item(0)?.extract()?;
-    let (condition, rest) = match kind.as_str() {
-        "callable" => (
-            core::Condition::Custom(std::sync::Arc::new(PyEvent { f: spec.get_item(1)?.unbind(), error: errors.clone() })),
-            2,
-        ),
-        "flip" => (core::Condition::Flip(spec.get_item(1)?.extract()?), 2),
-        "linear" => (
-            core::Condition::Linear {
-                theta: spec.get_item(1)?.extract()?,
-                omega: spec.get_item(2)?.extract()?,
-                constant: spec.get_item(3)?.extract()?,
-            },
-            4,
-        ),
-        other => return Err(InputError::new_err(format!("unknown event kind {other:?}"))),
+/// An event condition as the Python layer hands it to the core.
+#[pyclass(module = "multipendulum._core", frozen, name = "Event")]
+pub(crate) struct PyEventSpec {
+    condition: Cond,
+    direction: i8,
+    terminal: bool,
+}
+
+enum Cond {
+    Flip(Option<usize>),
+    Linear { theta: Vec<f64>, omega: Vec<f64>, constant: f64 },
+    Function(Py<PyAny>),
+}
+
+#[pymethods]
+impl PyEventSpec {
+    /// Link `link` (None: any) goes over the top, `|theta| = pi`.
+    #[staticmethod]
+    #[pyo3(signature = (link, *, direction, terminal))]
+    fn flip(link: Option<usize>, direction: i8, terminal: bool) -> Self {
+        PyEventSpec { condition: Cond::Flip(link), direction, terminal }
+    }
+
+    /// `theta . a + omega . b + constant` crosses zero.
+    #[staticmethod]
+    #[pyo3(signature = (theta, omega, constant, *, direction, terminal))]
+    fn linear(theta: Vec<f64>, omega: Vec<f64>, constant: f64, direction: i8, terminal: bool) -> Self {
+        PyEventSpec { condition: Cond::Linear { theta, omega, constant }, direction, terminal }
+    }
+
+    /// A Python function `g(t, theta, omega) -> float` crosses zero.
+    #[staticmethod]
+    #[pyo3(signature = (g, *, direction, terminal))]
+    fn function(g: Py<PyAny>, direction: i8, terminal: bool) -> Self {
+        PyEventSpec { condition: Cond::Function(g), direction, terminal }
+    }
+
+    fn __repr__(&self) -> String {
+        let kind = match self.condition {
+            Cond::Flip(_) => "flip",
+            Cond::Linear { .. } => "linear",
+            Cond::Function(_) => "function",
+        };
+        format!("Event.{kind}(direction={}, terminal={})", self.direction, if self.terminal { "True" } else { "False" })
+    }
+}
+
+fn event_spec(py: Python<'_>, spec: &PyEventSpec, errors: &EventErrors) -> core::EventSpec {
+    let condition = match &spec.condition {
+        Cond::Flip(k) => core::Condition::Flip(*k),
+        Cond::Linear { theta, omega, constant } => core::Condition::Linear { theta: theta.clone(), omega: omega.clone(), constant: *constant },
+        Cond::Function(g) => core::Condition::Custom(std::sync::Arc::new(PyEvent { f: g.clone_ref(py), error: errors.clone() })),
     };
-    Ok(core::EventSpec { condition, direction: spec.get_item(rest)?.extract()?, terminal: spec.get_item(rest + 1)?.extract()? })
+    core::EventSpec { condition, direction: spec.direction, terminal: spec.terminal }
 }
 
 /// Integrate B >= 1 initial states (rows of flat `theta0`, `omega0`). Built-in torques run
@@ -136,7 +169,7 @@ fn event_spec(spec: &Bound<'_, PyTuple>, errors: &EventErrors) -> PyResult<core:
 /// save)`, `save(state: bytes, t, steps)` called with the run's serialised state; `resume`: such
 /// bytes.
 #[pyfunction]
-#[pyo3(signature = (chain, theta0, omega0, t_end, *, method, rtol, atol, max_steps, form=None, dt=None, adaptive=true, t_eval=None, torque_spec=None, joint=false, progress=None, events=None, checkpoint=None, resume=None))]
+#[pyo3(signature = (chain, theta0, omega0, t_end, *, method, rtol, atol, max_steps, form=None, dt=None, adaptive=true, t_eval=None, torque=None, progress=None, events=None, checkpoint=None, resume=None))]
 #[allow(clippy::too_many_arguments)]
 fn simulate<'py>(
     py: Python<'py>,
@@ -152,10 +185,9 @@ fn simulate<'py>(
     dt: Option<f64>,
     adaptive: bool,
     t_eval: Option<PyReadonlyArray1<'py, f64>>,
-    torque_spec: Option<Bound<'py, PyTuple>>,
-    joint: bool,
+    torque: Option<PyRef<'py, PyTorque>>,
     progress: Option<Py<PyAny>>,
-    events: Option<Vec<Bound<'py, PyTuple>>>,
+    events: Option<Vec<PyRef<'py, PyEventSpec>>>,
     checkpoint: Option<(u64, Option<f64>, Py<PyAny>)>,
     resume: Option<Vec<u8>>,
 ) -> PyResult<Bound<'py, pyo3::types::PyDict>> {
@@ -172,12 +204,12 @@ fn simulate<'py>(
         adaptive,
         t_eval: t_eval.as_ref().map(|a| slice("t_eval", a).map(<[f64]>::to_vec)).transpose()?,
         max_steps,
-        events: events.unwrap_or_default().iter().map(|e| event_spec(e, &event_errors)).collect::<PyResult<_>>()?,
+        events: events.unwrap_or_default().iter().map(|e| event_spec(py, e, &event_errors)).collect(),
     };
     let (theta0, omega0) = (slice("theta0", &theta0)?, slice("omega0", &omega0)?);
     let b = rows("theta0", theta0.len(), n)?;
     let slot = RefCell::new(None);
-    let src = torque(n, torque_spec.as_ref(), joint, &slot)?;
+    let src = crate::torque::torque(py, n, torque.as_deref(), &slot)?;
     let resume = resume.as_deref().map(core::Checkpoint::from_bytes).transpose().map_err(err)?;
     let callable = matches!(src, AnyTorque::Call(_) | AnyTorque::JointCall(_));
     if (checkpoint.is_some() || resume.is_some()) && (b > 1 || callable) {

@@ -4,7 +4,6 @@ use std::cell::RefCell;
 
 use multipendulum_core as core;
 use pyo3::prelude::*;
-use pyo3::types::PyTuple;
 
 use core::{Builtin, Error, Interp, Joint, TorqueSource};
 
@@ -58,27 +57,95 @@ impl TorqueSource for Callback<'_> {
     }
 }
 
-/// Build a built-in torque from the Python layer's normalised spec:
-/// `("constant", values)`, `("sinusoid", amplitude, frequency, phase, offset)`,
-/// `("table", times, values, "linear"|"cubic")`.
-pub(crate) fn builtin(n: usize, spec: &Bound<'_, PyTuple>) -> PyResult<Builtin> {
-    let kind: String = spec.get_item(0)?.extract()?;
-    let arr = |i: usize| -> PyResult<Vec<f64>> { spec.get_item(i)?.extract() };
-    let py = spec.py();
-    match kind.as_str() {
-        "constant" => Builtin::constant(n, arr(1)?),
-        "sinusoid" => Builtin::sinusoid(n, arr(1)?, arr(2)?, arr(3)?, arr(4)?),
-        "table" => {
-            let interp = match spec.get_item(3)?.extract::<String>()?.as_str() {
-                "linear" => Interp::Linear,
-                "cubic" => Interp::Cubic,
-                other => return Err(InputError::new_err(format!("kind must be \"linear\" or \"cubic\", got {other:?}"))),
-            };
-            Builtin::table(n, arr(1)?, arr(2)?, interp)
-        }
-        other => return Err(InputError::new_err(format!("unknown torque kind {other:?}"))),
+/// A torque as the Python layer hands it to the core: a built-in (evaluated in Rust) or a Python
+/// function, in the generalized (`joint = False`) or the joint-motor convention. Checked against
+/// the chain (its number of links) where it is used.
+#[pyclass(module = "multipendulum._core", frozen, name = "Torque")]
+pub(crate) struct PyTorque {
+    kind: Kind,
+    joint: bool,
+}
+
+enum Kind {
+    Constant(Vec<f64>),
+    Sinusoid { amplitude: Vec<f64>, frequency: Vec<f64>, phase: Vec<f64>, offset: Vec<f64> },
+    Table { t: Vec<f64>, values: Vec<f64>, interp: Interp },
+    Function { f: Py<PyAny>, with_state: bool },
+}
+
+#[pymethods]
+impl PyTorque {
+    /// Constant generalized (or joint) torques, one per link.
+    #[staticmethod]
+    #[pyo3(signature = (values, *, joint=false))]
+    fn constant(values: Vec<f64>, joint: bool) -> Self {
+        PyTorque { kind: Kind::Constant(values), joint }
     }
-    .map_err(|e| to_py(py, e))
+
+    /// `offset + amplitude sin(frequency t + phase)`, each one value per link.
+    #[staticmethod]
+    #[pyo3(signature = (amplitude, frequency, phase, offset, *, joint=false))]
+    fn sinusoid(amplitude: Vec<f64>, frequency: Vec<f64>, phase: Vec<f64>, offset: Vec<f64>, joint: bool) -> Self {
+        PyTorque { kind: Kind::Sinusoid { amplitude, frequency, phase, offset }, joint }
+    }
+
+    /// Tabulated torques: `values` row-major `(len(t), N)`, interpolated `"linear"` or `"cubic"`.
+    #[staticmethod]
+    #[pyo3(signature = (t, values, kind, *, joint=false))]
+    fn table(t: Vec<f64>, values: Vec<f64>, kind: &str, joint: bool) -> PyResult<Self> {
+        let interp = match kind {
+            "linear" => Interp::Linear,
+            "cubic" => Interp::Cubic,
+            other => return Err(InputError::new_err(format!("kind must be \"linear\" or \"cubic\", got {other:?}"))),
+        };
+        Ok(PyTorque { kind: Kind::Table { t, values, interp }, joint })
+    }
+
+    /// A Python function `f(t)` (`with_state = False`) or `f(t, theta, omega)` returning N values.
+    #[staticmethod]
+    #[pyo3(signature = (f, *, with_state, joint=false))]
+    fn function(f: Py<PyAny>, with_state: bool, joint: bool) -> Self {
+        PyTorque { kind: Kind::Function { f, with_state }, joint }
+    }
+
+    #[getter]
+    fn joint(&self) -> bool {
+        self.joint
+    }
+
+    /// `"constant"`, `"sinusoid"`, `"table"` or `"function"`.
+    #[getter]
+    fn kind(&self) -> &'static str {
+        match self.kind {
+            Kind::Constant(_) => "constant",
+            Kind::Sinusoid { .. } => "sinusoid",
+            Kind::Table { .. } => "table",
+            Kind::Function { .. } => "function",
+        }
+    }
+
+    fn __repr__(&self) -> String {
+        format!("Torque.{}(joint={})", self.kind(), if self.joint { "True" } else { "False" })
+    }
+}
+
+impl PyTorque {
+    /// The core's built-in for an `n`-link chain; `None` for a Python function.
+    fn builtin(&self, py: Python<'_>, n: usize) -> PyResult<Option<Builtin>> {
+        let b = match &self.kind {
+            Kind::Constant(v) => Builtin::constant(n, v.clone()),
+            Kind::Sinusoid { amplitude, frequency, phase, offset } => {
+                Builtin::sinusoid(n, amplitude.clone(), frequency.clone(), phase.clone(), offset.clone())
+            }
+            Kind::Table { t, values, interp } => Builtin::table(n, t.clone(), values.clone(), *interp),
+            Kind::Function { .. } => return Ok(None),
+        };
+        b.map(Some).map_err(|e| to_py(py, e))
+    }
+}
+
+pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<PyTorque>()
 }
 
 /// Any torque the Python layer can pass, in either convention.
@@ -107,21 +174,20 @@ impl TorqueSource for AnyTorque<'_> {
     }
 }
 
-/// `spec`: None, a built-in tuple, or `("callable", f, with_state)`; `joint` selects the
-/// joint-motor convention.
+/// The torque a run or an evaluation uses; `error` keeps a Python function's own exception.
 pub(crate) fn torque<'py>(
+    py: Python<'py>,
     n: usize,
-    spec: Option<&Bound<'py, PyTuple>>,
-    joint: bool,
+    spec: Option<&PyTorque>,
     error: &'py RefCell<Option<PyErr>>,
 ) -> PyResult<AnyTorque<'py>> {
     let Some(spec) = spec else { return Ok(AnyTorque::Builtin(Builtin::None)) };
-    if spec.get_item(0)?.extract::<String>()? == "callable" {
-        let cb = Callback { f: spec.get_item(1)?, with_state: spec.get_item(2)?.extract()?, error };
-        return Ok(if joint { AnyTorque::JointCall(Joint(cb)) } else { AnyTorque::Call(cb) });
+    if let Kind::Function { f, with_state } = &spec.kind {
+        let cb = Callback { f: f.bind(py).clone(), with_state: *with_state, error };
+        return Ok(if spec.joint { AnyTorque::JointCall(Joint(cb)) } else { AnyTorque::Call(cb) });
     }
-    let b = builtin(n, spec)?;
-    Ok(if joint { AnyTorque::JointBuiltin(Joint(b)) } else { AnyTorque::Builtin(b) })
+    let b = spec.builtin(py, n)?.unwrap_or(Builtin::None);
+    Ok(if spec.joint { AnyTorque::JointBuiltin(Joint(b)) } else { AnyTorque::Builtin(b) })
 }
 
 /// Re-raise a torque function's own exception where the core reported it.
@@ -133,14 +199,14 @@ pub(crate) fn torque_error(py: Python<'_>, e: Error, slot: &RefCell<Option<PyErr
 }
 
 /// A built-in generalized torque for the chaos kernels (which run without the GIL).
-pub(crate) fn builtin_only(py: Python<'_>, n: usize, spec: Option<&Bound<'_, PyTuple>>, what: &str) -> PyResult<Builtin> {
-    let _ = py;
+pub(crate) fn builtin_only(py: Python<'_>, n: usize, spec: Option<&PyTorque>, what: &str) -> PyResult<Builtin> {
     match spec {
         None => Ok(Builtin::None),
-        Some(spec) if spec.get_item(0)?.extract::<String>()? == "callable" => Err(InputError::new_err(format!(
-            "{what} takes built-in torques only (constant, Sinusoid, Table), not a Python function"
-        ))),
-        Some(spec) => builtin(n, spec),
+        Some(PyTorque { joint: true, .. }) => {
+            Err(InputError::new_err(format!("{what} takes generalized torques (torque=), not joint torques")))
+        }
+        Some(spec) => spec.builtin(py, n)?.ok_or_else(|| {
+            InputError::new_err(format!("{what} takes built-in torques only (constant, Sinusoid, Table), not a Python function"))
+        }),
     }
 }
-

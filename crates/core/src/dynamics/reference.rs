@@ -16,6 +16,56 @@ fn dense_rhs(chain: &Chain, theta: &[f64], omega: &[f64], tau: &[f64]) -> Vec<f6
         .collect()
 }
 
+/// The routes to the accelerations: the O(N) recursion, and the reference routes it is checked
+/// against, each refused beyond the size where it would look like a hang.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Algorithm {
+    Recursive,
+    /// A dense Cholesky solve, O(N^3).
+    Cholesky,
+    /// Seed 000's Cramer's rule, O(N^4).
+    Cramer,
+}
+
+impl Algorithm {
+    pub const ALL: [Algorithm; 3] = [Algorithm::Recursive, Algorithm::Cholesky, Algorithm::Cramer];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Algorithm::Recursive => "recursive",
+            Algorithm::Cholesky => "cholesky",
+            Algorithm::Cramer => "cramer",
+        }
+    }
+
+    /// The most links the route takes (`None`: any).
+    pub fn max_links(self) -> Option<usize> {
+        match self {
+            Algorithm::Recursive => None,
+            Algorithm::Cholesky => Some(2000),
+            Algorithm::Cramer => Some(12),
+        }
+    }
+
+    pub fn parse(name: &str) -> crate::error::Result<Self> {
+        Self::ALL.into_iter().find(|a| a.name() == name).ok_or_else(|| {
+            let valid: Vec<&str> = Self::ALL.iter().map(|a| a.name()).collect();
+            crate::error::Error::input(format!("algorithm must be one of {}, got '{name}'", valid.join(", ")))
+        })
+    }
+
+    /// Refuse a chain too long for the route.
+    pub fn check(self, n: usize) -> crate::error::Result<()> {
+        match self.max_links() {
+            Some(limit) if n > limit => Err(crate::error::Error::input(format!(
+                "algorithm '{}' is a reference route for N <= {limit}, got N = {n}; use the default \"recursive\" (O(N))",
+                self.name()
+            ))),
+            _ => Ok(()),
+        }
+    }
+}
+
 /// Accelerations by a dense Cholesky factorisation of the mass matrix.
 pub fn accelerations_cholesky(chain: &Chain, theta: &[f64], omega: &[f64], tau: &[f64]) -> Result<Vec<f64>, Singular> {
     let n = chain.n();

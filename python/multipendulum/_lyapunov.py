@@ -1,0 +1,76 @@
+"""Lyapunov exponents from the variational equations, and how long a run stays trustworthy.
+Below :mod:`multipendulum._simulate` (whose ``Solution.trustworthy_until`` uses it) and
+re-exported by :mod:`multipendulum.chaos`."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+import multipendulum._core as _core
+from ._chain import Chain, as_state, check_chain
+from ._convert import as_float
+from ._torque import core_torque, normalise_torque
+from .errors import InputError
+
+
+@dataclass(frozen=True)
+class LyapunovResult:
+    """``exponents`` (k,) in 1/s, largest first; ``times`` (R,) of the re-orthonormalisations and
+    ``history`` (R, k) of the running estimates, to judge convergence."""
+
+    exponents: np.ndarray
+    times: np.ndarray
+    history: np.ndarray
+
+    @property
+    def largest(self) -> float:
+        return float(self.exponents[0])
+
+
+def _link(link, n):
+    if link is None:
+        return None
+    if not isinstance(link, (int, np.integer)) or not 0 <= link < n:
+        raise InputError(f"link must be an integer in [0, {n}) or None (any link), got {link!r}")
+    return int(link)
+
+
+def lyapunov(chain: Chain, theta0, omega0, t_end, dt=0.005, k=None, renorm_every=10, torque=None) -> LyapunovResult:
+    """The ``k`` largest Lyapunov exponents (default: the full spectrum, k = 2N).
+
+    Integrates the variational (tangent) equations of the Lagrangian form with rk4 at step ``dt``
+    and re-orthonormalises the tangent vectors every ``renorm_every`` steps (Benettin et al. 1980).
+    For the undriven chain the spectrum comes in +/- pairs summing to ~0. ``torque`` may depend
+    on time (a constant, :class:`Sinusoid` or :class:`Table`).
+
+    >>> import multipendulum as mp
+    >>> res = mp.lyapunov(mp.Chain([1, 1], [1, 1]), [2.0, 2.5], [0, 0], t_end=100.0)
+    >>> bool(res.largest > 0.5)
+    True
+    """
+    check_chain(chain)
+    th0, om0 = as_state(theta0, "theta0", chain.n), as_state(omega0, "omega0", chain.n)
+    if th0.ndim != 1 or om0.ndim != 1:
+        raise InputError(f"theta0 and omega0 must have shape ({chain.n},)")
+    k = 2 * chain.n if k is None else k
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)):
+        raise InputError(f"k must be an integer between 1 and 2N = {2 * chain.n}, got {k!r}")
+    if not 1 <= k <= 2 * chain.n:
+        raise InputError(f"k must be between 1 and 2N = {2 * chain.n}, got {k}")
+    if isinstance(renorm_every, bool) or not isinstance(renorm_every, (int, np.integer)) \
+            or not 1 <= renorm_every < 2**64:
+        raise InputError(f"renorm_every must be a positive integer (steps), got {renorm_every!r}")
+    spec, joint = normalise_torque(torque, None, chain.n)
+    exps, times, hist = _core.lyapunov(chain._c, th0.tolist(), om0.tolist(), as_float(t_end, "t_end"),
+                                       dt=as_float(dt, "dt"), k=int(k), renorm_every=int(renorm_every),
+                                       torque=core_torque(spec, joint))
+    return LyapunovResult(exps, times, hist.reshape(times.size, int(k)))
+
+
+def trustworthy_until(lyapunov_exponent: float, tolerance: float = 1e-2, eps: float = 1e-16) -> float:
+    """How long a chaotic run stays within ``tolerance`` of the true trajectory when it starts
+    off by ``eps`` (round-off): ``ln(tolerance / eps) / lambda_max``; infinite when lambda <= 0."""
+    if lyapunov_exponent <= 0:
+        return float("inf")
+    return float(np.log(tolerance / eps) / lyapunov_exponent)
