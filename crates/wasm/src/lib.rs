@@ -69,6 +69,46 @@ pub extern "C" fn mp_error_len() -> usize {
     LAST_ERROR.with(|m| m.borrow().len())
 }
 
+thread_local! {
+    static FACTS: String = facts_json();
+}
+
+/// The core's facts as JSON (methods with their order, kind and forms; defaults; limits), so
+/// the page restates none of them.
+fn facts_json() -> String {
+    use multipendulum_core::facts;
+    let list = |v: Vec<&str>| v.iter().map(|s| format!("\"{s}\"")).collect::<Vec<_>>().join(",");
+    let methods: Vec<String> = facts::methods()
+        .iter()
+        .map(|m| {
+            format!(
+                "\"{}\":{{\"order\":{},\"symplectic\":{},\"implicit\":{},\"adaptive\":{},\"needs_dt\":{},\"forms\":[{}]}}",
+                m.name, m.order, m.symplectic, m.implicit, m.adaptive, m.needs_dt, list(m.forms.clone())
+            )
+        })
+        .collect();
+    let numbers = |v: Vec<facts::Fact>| v.iter().map(|(k, x, _)| format!("\"{k}\":{x:e}")).collect::<Vec<_>>().join(",");
+    format!(
+        "{{\"methods\":{{{}}},\"method_order\":[{}],\"defaults\":{{{},\"method\":\"{}\"}},\"limits\":{{{}}}}}",
+        methods.join(","),
+        list(facts::methods().iter().map(|m| m.name).collect()),
+        numbers(facts::defaults()),
+        facts::default_method(),
+        numbers(facts::limits())
+    )
+}
+
+/// The core's facts as JSON (UTF-8, `mp_facts_len` bytes).
+#[no_mangle]
+pub extern "C" fn mp_facts_ptr() -> *const u8 {
+    FACTS.with(|f| f.as_ptr())
+}
+
+#[no_mangle]
+pub extern "C" fn mp_facts_len() -> usize {
+    FACTS.with(|f| f.len())
+}
+
 /// A simulation: the core's stepper for an undriven chain.
 pub struct Sim {
     stepper: Stepper<Builtin>,
@@ -193,7 +233,8 @@ pub unsafe extern "C" fn mp_sim_initial_energy(sim: *const Sim) -> f64 {
     (*sim).stepper.initial_energy()
 }
 
-/// `|E - E0| / |E0|` (absolute when `E0 = 0`).
+/// The energy error of the current state, as the core defines it for every report:
+/// `|E - E0 - W| / (g sum |h_i| + max T)` (`multipendulum_core::run::energy`).
 ///
 /// # Safety
 /// `sim` is a live handle from `mp_sim_new`.
@@ -249,6 +290,20 @@ pub unsafe extern "C" fn mp_sim_omega(sim: *mut Sim, out: *mut f64) {
 pub unsafe extern "C" fn mp_sim_positions(sim: *const Sim, out: *mut f64) {
     let s = &(*sim).stepper;
     s.positions_into(std::slice::from_raw_parts_mut(out, 2 * s.n()));
+}
+
+#[cfg(test)]
+mod facts_tests {
+    #[test]
+    fn the_facts_are_json_naming_every_method() {
+        let json = super::facts_json();
+        for m in multipendulum_core::Method::ALL {
+            assert!(json.contains(&format!("\"{}\":{{\"order\":{}", m.name(), m.order())), "{json}");
+        }
+        assert!(json.contains("\"rtol\":1e-10"), "{json}");
+        assert_eq!(json.matches('{').count(), json.matches('}').count());
+
+    }
 }
 
 #[cfg(test)]

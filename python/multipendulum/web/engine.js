@@ -12,9 +12,16 @@ export class EngineError extends Error {
   }
 }
 
-/** Integrator names shared with the Python package and the CLI. */
-export const METHODS = ["rk4", "dop853", "gauss4", "gauss6"];
-export const ADAPTIVE = new Set(["dop853"]);
+// The core's facts, read from the module once it is loaded (`loadEngine`): integrator names
+// shared with the Python package and the CLI, which of them adapt their step, the defaults.
+/** Integrator names, in the core's order. */
+export let METHODS = [];
+/** The methods that choose their own step (tolerances instead of dt). */
+export let ADAPTIVE = new Set();
+/** The core's defaults: { rtol, atol, max_steps, method }. */
+export let DEFAULTS = {};
+/** Per method: { order, symplectic, implicit, adaptive, needs_dt, forms }. */
+export let METHOD_INFO = {};
 
 const DONE = 0;
 const BUDGET = 1;
@@ -28,7 +35,13 @@ export async function loadEngine(url = new URL("./multipendulum.wasm", import.me
   }
   // Not instantiateStreaming: some static servers do not send application/wasm.
   const { instance } = await WebAssembly.instantiate(await response.arrayBuffer(), {});
-  return new Engine(instance.exports);
+  const engine = new Engine(instance.exports);
+  const facts = engine.facts();
+  METHODS = facts.method_order;
+  METHOD_INFO = facts.methods;
+  ADAPTIVE = new Set(METHODS.filter((m) => facts.methods[m].adaptive));
+  DEFAULTS = facts.defaults;
+  return engine;
 }
 
 export class Engine {
@@ -38,6 +51,14 @@ export class Engine {
 
   f64(ptr, n) {
     return new Float64Array(this.x.memory.buffer, ptr, n);
+  }
+
+  /** The core's facts (methods, defaults, limits), as the module states them. */
+  facts() {
+    // The calls first: the first one builds the text and may grow (and so detach) the memory.
+    const ptr = this.x.mp_facts_ptr();
+    const len = this.x.mp_facts_len();
+    return JSON.parse(new TextDecoder().decode(new Uint8Array(this.x.memory.buffer, ptr, len)));
   }
 
   lastError() {
@@ -81,7 +102,7 @@ export class Engine {
     try {
       const handle = this.x.mp_sim_new(
         n, p.kind === "rods" ? 1 : 0, put(p.lengths), put(p.masses), put(p.com), put(p.inertia),
-        p.g, namePtr, name.length, p.dt ?? 0, p.rtol ?? 1e-10, p.atol ?? 1e-12,
+        p.g, namePtr, name.length, p.dt ?? 0, p.rtol ?? DEFAULTS.rtol, p.atol ?? DEFAULTS.atol,
         put(p.theta), put(p.omega ?? new Array(n).fill(0)),
       );
       if (handle === 0) throw new EngineError(this.lastError(), "input");
@@ -115,7 +136,8 @@ export class Simulation {
   get t() { return this.x.mp_sim_t(this.handle); }
   get energy() { return this.x.mp_sim_energy(this.handle); }
   get initialEnergy() { return this.x.mp_sim_initial_energy(this.handle); }
-  /** |E - E0| / |E0| (absolute when E0 = 0). */
+  /** The energy error as the core defines it for every report: |E - E0 - W| over the scale
+   *  g sum |h_i| + max T (the potential well's depth plus the largest kinetic energy so far). */
   get energyError() { return this.x.mp_sim_energy_error(this.handle); }
   get steps() { return this.x.mp_sim_steps(this.handle); }
   get evaluations() { return this.x.mp_sim_evaluations(this.handle); }

@@ -210,8 +210,8 @@ export function fromToml(raw) {
     omega: perLink(initial.omega ?? 0, "initial.omega", n, true).map((x) => x * scale),
     method,
     dt: sim.dt ?? null,
-    rtol: sim.rtol ?? 1e-10,
-    atol: sim.atol ?? 1e-12,
+    rtol: sim.rtol ?? null, // null: the core's default
+    atol: sim.atol ?? null,
     notes,
   };
 }

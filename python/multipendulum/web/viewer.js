@@ -2,7 +2,7 @@
 // Every value typed, loaded from a scenario or read from the URL goes through the same path:
 // fields (strings) -> setup (numbers) -> a new simulation built by the core, which checks it.
 // Nothing is applied unless the core accepts it; the message says what was refused.
-import { ADAPTIVE, EngineError, loadEngine, METHODS } from "./engine.js";
+import { ADAPTIVE, DEFAULTS as CORE_DEFAULTS, EngineError, loadEngine, METHOD_INFO, METHODS } from "./engine.js";
 import { fromToml, parseToml, ScenarioError } from "./scenario.js";
 
 const MAX_N = 100;
@@ -10,11 +10,14 @@ const TRAIL_SECONDS = 2;
 const PLOT_POINTS = 1500;
 const FRAME_BUDGET_MS = 10; // integration time per frame; beyond it the run slows down instead
 const DEG = Math.PI / 180;
+/** The core's energy error: |E - E0| over the potential well's depth plus the largest kinetic energy. */
+const ERROR_LABEL = "energy error |ΔE|/(g Σ|hᵢ| + T_max)";
 
+// The page's own defaults; method, tol and atol are the core's, filled in once it has loaded.
 const DEFAULTS = {
   n: "2", kind: "points", lengths: "1", masses: "1", g: "9.81", theta: "130, 160",
-  method: "dop853", dt: "0.002", tol: "1e-10", speed: "1", omega: "0", com: "", inertia: "",
-  atol: "1e-12", name: "",
+  method: "", dt: "0.002", tol: "", speed: "1", omega: "0", com: "", inertia: "",
+  atol: "", name: "",
 };
 const FIELDS = Object.keys(DEFAULTS);
 const LIST_FIELDS = ["lengths", "masses", "theta", "omega", "com", "inertia"];
@@ -56,12 +59,11 @@ const state = {
   clock: 0, // the simulated time the display should be at
   lagging: false,
   trail: [], // [t, x, y] of the tip
-  history: [], // [t, relative energy error]
+  history: [], // [t, energy error]
   lastFrame: 0,
   fps: 0,
   drag: null,
   failed: false,
-  relative: true, // the error is |dE / E0|; false when E0 is about 0 (then |dE| in J)
 };
 
 // ---- Fields -> setup ---------------------------------------------------------------------------
@@ -124,8 +126,8 @@ function parseFields(f) {
     omega: list("omega", f.omega, n).map((x) => x * DEG),
     method,
     dt: ADAPTIVE.has(method) ? 0 : number("dt", f.dt),
-    rtol: ADAPTIVE.has(method) ? number("tol", f.tol) : 1e-10,
-    atol: ADAPTIVE.has(method) ? number("atol", f.atol) : 1e-12,
+    rtol: ADAPTIVE.has(method) ? number("tol", f.tol) : CORE_DEFAULTS.rtol,
+    atol: ADAPTIVE.has(method) ? number("atol", f.atol) : CORE_DEFAULTS.atol,
     speed,
   };
 }
@@ -161,12 +163,8 @@ function refuse(field, message) {
 }
 
 function restart() {
-  // A relative error needs E0 well away from 0 (a chain released horizontally has E0 = 0):
-  // compared with the scale of the potential energy, |g| sum(m) sum(l).
-  const { g, masses, lengths } = state.setup;
-  const scale = Math.abs(g) * masses.reduce((a, b) => a + b, 0) * lengths.reduce((a, b) => a + b, 0);
-  state.relative = Math.abs(state.sim.initialEnergy) > 1e-6 * scale;
-  ui.errorLabel.textContent = state.relative ? "|ΔE/E₀|" : "|ΔE| (J), E₀ ≈ 0";
+  // The energy error is the core's, defined once for every report (never re-derived here).
+  ui.errorLabel.textContent = ERROR_LABEL;
   state.clock = 0;
   state.trail = [];
   state.history = [];
@@ -267,8 +265,8 @@ function fieldsFromScenario(s) {
   f.omega = compress(s.omega.map((x) => x / DEG));
   f.method = s.method;
   if (s.dt != null) f.dt = fmt(s.dt);
-  f.tol = fmt(s.rtol);
-  f.atol = fmt(s.atol);
+  f.tol = fmt(s.rtol ?? CORE_DEFAULTS.rtol);
+  f.atol = fmt(s.atol ?? CORE_DEFAULTS.atol);
   return f;
 }
 
@@ -317,7 +315,7 @@ function record() {
   while (state.trail.length > 2 && t - state.trail[0][0] > TRAIL_SECONDS) state.trail.shift();
   const h = state.history;
   if (!h.length || t > h[h.length - 1][0]) {
-    h.push([t, state.relative ? sim.energyError : Math.abs(sim.energy - sim.initialEnergy)]);
+    h.push([t, sim.energyError]);
     if (h.length > PLOT_POINTS) state.history = h.filter((_, i) => i % 2 === 0 || i === h.length - 1);
   }
 }
@@ -452,7 +450,7 @@ function drawPlot() {
   }
   ctx.textAlign = "left";
   ctx.textBaseline = "bottom";
-  ctx.fillText(`${state.relative ? "|ΔE/E₀|" : "|ΔE| (J)"} over t = 0 … ${fmt(+tMax.toFixed(1))} s`, left + 4 * dpr, H - 2 * dpr);
+  ctx.fillText(`${ERROR_LABEL} over t = 0 … ${fmt(+tMax.toFixed(1))} s`, left + 4 * dpr, H - 2 * dpr);
   if (!h.length) return;
   ctx.strokeStyle = "#2f6fb3";
   ctx.lineWidth = 1.5 * dpr;
@@ -465,7 +463,7 @@ function readouts() {
   const sim = state.sim;
   ui.t.textContent = `${sim.t.toFixed(3)} s`;
   ui.energy.textContent = `${sim.energy.toPrecision(9)} J`;
-  const err = state.relative ? sim.energyError : Math.abs(sim.energy - sim.initialEnergy);
+  const err = sim.energyError;
   ui.error.textContent = err.toExponential(2);
   ui.steps.textContent = String(sim.steps);
   ui.fps.textContent = state.playing && state.fps ? state.fps.toFixed(0) : "–";
@@ -617,7 +615,12 @@ async function main() {
     showMessage(`The engine did not load: ${e.message}`);
     return;
   }
-  for (const m of METHODS) console.assert(form.elements.method.querySelector(`option[value="${m}"]`), m);
+  Object.assign(DEFAULTS, { method: CORE_DEFAULTS.method, tol: fmt(CORE_DEFAULTS.rtol), atol: fmt(CORE_DEFAULTS.atol) });
+  for (const m of METHODS) {
+    const info = METHOD_INFO[m];
+    const kind = info.adaptive ? "adaptive" : info.symplectic ? "symplectic" : "fixed step";
+    form.elements.method.append(new Option(`${m} (order ${info.order}, ${kind})`, m));
+  }
   const fromUrl = fieldsFromUrl();
   const scenario = new URLSearchParams(location.search).get("scenario");
   apply(DEFAULTS);
