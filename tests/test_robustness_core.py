@@ -110,3 +110,22 @@ def test_ctrl_c_stops_long_core_work_within_a_second(call):
     out = proc.stdout.read()
     assert code == 3 and "interrupted" in out, (code, out, proc.stderr.read())
     assert waited < 1.0, f"took {waited:.2f} s to stop"
+
+
+@pytest.mark.parametrize("lengths,masses,word", [
+    ([1.0, 1.0], [1e-300, 1e-300], "small"),
+    ([1e-150, 1e-150], [1e-150, 1e-150], "small"),
+    ([1e150, 1e150], [1.0, 1.0], "large"),
+    ([1.0, 1.0], [1e300, 1e300], "large"),
+])
+def test_chains_degenerate_in_scale_are_refused_at_construction(lengths, masses, word):
+    with pytest.raises(mp.InputError, match=rf"the chain's scale is out of float64's range: link \d.*too {word}"):
+        mp.Chain(lengths, masses)
+    with pytest.raises(mp.InputError, match="out of float64's range"):
+        mp.Chain.rods(lengths, masses)
+
+
+def test_chains_small_or_large_but_representable_are_accepted():
+    for scale in (1e-60, 1e60):
+        chain = mp.Chain([scale, scale], [1.0, 1.0], g=9.81)
+        assert np.isfinite(chain.accelerations([0.1, 0.2], [0, 0])).all()

@@ -82,8 +82,26 @@ impl Chain {
                 g * moment
             )));
         }
+        // The O(N) solve forms products of two diagonal entries (the 2x2 articulated inertias):
+        // parameters so small or so large in scale that those products leave the normal range make
+        // the mass matrix numerically singular in every configuration. Refuse them here, as bad
+        // input, rather than at t = 0 as a failed integration.
         let chain = Chain { lengths: lengths.to_vec(), masses: masses.to_vec(), com, inertia, g, h, diag };
         chain.check_nonsingular()?;
+        // (A chain that passes the structural check has every diagonal entry > 0 in exact
+        // arithmetic: a zero here is an underflow.)
+        for (i, &d) in chain.diag.iter().enumerate() {
+            let square = d * d;
+            if !(d > 0.0 && square.is_finite() && square * 1e-16 >= f64::MIN_POSITIVE) {
+                return Err(Error::input(format!(
+                    "the chain's scale is out of float64's range: link {i}'s moment of inertia about its \
+                     pivot is {d:e} kg m^2, whose square {} (masses and lengths too {}); express them in \
+                     other units",
+                    if square.is_finite() { "underflows" } else { "overflows" },
+                    if square.is_finite() { "small" } else { "large" }
+                )));
+            }
+        }
         Ok(chain)
     }
 
