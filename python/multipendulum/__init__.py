@@ -7,6 +7,8 @@ orchestrates. Public API::
     sol = simulate(chain, theta0, omega0, t_end, method="dop853", ...)
 """
 
+import typing as _typing
+
 from . import _core
 from ._chain import Chain
 from ._simulate import DEFAULTS, METHOD_INFO, METHODS, Crossing, Event, EventRecord, Flip, Solution, Stats, resume, simulate
@@ -30,7 +32,7 @@ __all__ = [
 ]
 
 
-def __getattr__(name):
+def __getattr__(name: str) -> _typing.Any:
     # Presentation layers import Matplotlib; load them only when asked for.
     lazy = {
         "animate": ("animation", "animate"),

@@ -2,12 +2,14 @@
 from __future__ import annotations
 
 import math
+from typing import Any, Dict, List, Optional, Tuple, Type, Union
 
 import numpy as np
+import numpy.typing as npt
 
 import multipendulum._core as _core
 from ._convert import as_float, as_floats
-from ._torque import core_torque, normalise_torque
+from ._torque import TorqueLike, core_torque, normalise_torque
 from .errors import InputError
 
 #: The routes to the accelerations and the most links each takes (None: any), from the core.
@@ -15,7 +17,7 @@ ALGORITHMS = dict(_core.ALGORITHMS)
 MAX_STATE = _core.LIMITS["max_angle"]  # the largest |angle| a state may hold (the core's limit)
 
 
-def _finite_result(out: np.ndarray, what: str) -> np.ndarray:
+def _finite_result(out: npt.NDArray[np.float64], what: str) -> npt.NDArray[np.float64]:
     """Finite inputs can still overflow (huge masses times huge rates): say so, never return NaN."""
     if not math.isfinite(np.vdot(out, out)) and not np.isfinite(out).all():
         raise InputError(f"the {what} overflow for these inputs (non-finite result): the chain's masses, "
@@ -23,12 +25,12 @@ def _finite_result(out: np.ndarray, what: str) -> np.ndarray:
     return out
 
 
-def check_chain(chain) -> None:
+def check_chain(chain: object) -> None:
     if not isinstance(chain, Chain):
         raise InputError(f"chain must be a multipendulum.Chain, got {type(chain).__name__}")
 
 
-def as_state(x, name: str, n: int) -> np.ndarray:
+def as_state(x: npt.ArrayLike, name: str, n: int) -> npt.NDArray[np.float64]:
     """float64, C-contiguous, last axis of length n (leading axes are a batch)."""
     a = as_floats(x, name)
     if a.ndim == 0 and n == 1:
@@ -73,9 +75,11 @@ class Chain:
     """
 
     __slots__ = ("_c",)
+    _c: _core.Chain
 
-    def __init__(self, lengths, masses, com=None, inertia=None, g=9.81):
-        args = {}
+    def __init__(self, lengths: npt.ArrayLike, masses: npt.ArrayLike, com: Optional[npt.ArrayLike] = None,
+                 inertia: Optional[npt.ArrayLike] = None, g: float = 9.81) -> None:
+        args: Dict[str, Any] = {}
         for name, v in (("lengths", lengths), ("masses", masses), ("com", com), ("inertia", inertia)):
             if v is None and name in ("com", "inertia"):
                 args[name] = None
@@ -87,7 +91,7 @@ class Chain:
         self._c = _core.Chain(args["lengths"], args["masses"], args["com"], args["inertia"], as_float(g, "g"))
 
     @classmethod
-    def rods(cls, lengths, masses, g=9.81) -> "Chain":
+    def rods(cls, lengths: npt.ArrayLike, masses: npt.ArrayLike, g: float = 9.81) -> Chain:
         """Uniform rods (seed 001's arms): centre of mass mid-link, inertia m l^2 / 12."""
         lengths = as_floats(lengths, "lengths")
         masses = as_floats(masses, "masses")
@@ -98,48 +102,69 @@ class Chain:
         return cls._wrap(_core.Chain.rods(lengths.tolist(), masses.tolist(), as_float(g, "g")))
 
     @classmethod
-    def _wrap(cls, core_chain) -> "Chain":
+    def _wrap(cls, core_chain: _core.Chain) -> Chain:
         obj = cls.__new__(cls)
         obj._c = core_chain
         return obj
 
-    n = property(lambda self: self._c.n, doc="number of links")
-    lengths = property(lambda self: self._c.lengths)
-    masses = property(lambda self: self._c.masses)
-    com = property(lambda self: self._c.com)
-    inertia = property(lambda self: self._c.inertia)
-    g = property(lambda self: self._c.g)
+    @property
+    def n(self) -> int:
+        """number of links"""
+        return self._c.n
 
-    def __repr__(self):
+    @property
+    def lengths(self) -> npt.NDArray[np.float64]:
+        return self._c.lengths
+
+    @property
+    def masses(self) -> npt.NDArray[np.float64]:
+        return self._c.masses
+
+    @property
+    def com(self) -> npt.NDArray[np.float64]:
+        return self._c.com
+
+    @property
+    def inertia(self) -> npt.NDArray[np.float64]:
+        return self._c.inertia
+
+    @property
+    def g(self) -> float:
+        return self._c.g
+
+    def __repr__(self) -> str:
         return repr(self._c)
 
-    def __eq__(self, other):
+    def __eq__(self, other: object) -> bool:
         return isinstance(other, Chain) and repr(self) == repr(other)
 
-    def __hash__(self):
+    def __hash__(self) -> int:
         return hash(repr(self))
 
-    def __reduce__(self):
+    def __reduce__(self) -> Tuple[Type[Chain], Tuple[npt.NDArray[np.float64], npt.NDArray[np.float64],
+                                                    npt.NDArray[np.float64], npt.NDArray[np.float64], float]]:
         return (Chain, (self.lengths, self.masses, self.com, self.inertia, self.g))
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> Dict[str, Any]:
         return {"lengths": self.lengths.tolist(), "masses": self.masses.tolist(), "com": self.com.tolist(),
                 "inertia": self.inertia.tolist(), "g": self.g}
 
     # -- dynamics (all computed in Rust) --------------------------------------------------------
-    def _states(self, **arrays):
+    def _states(self, **arrays: npt.ArrayLike) -> List[npt.NDArray[np.float64]]:
         out = [as_state(v, k, self.n) for k, v in arrays.items()]
         shapes = {a.shape for a in out}
         if len(shapes) > 1:
             raise InputError("shapes differ: " + ", ".join(f"{k} {a.shape}" for k, a in zip(arrays, out)))
         return out
 
-    def mass_matrix(self, theta) -> np.ndarray:
+    def mass_matrix(self, theta: npt.ArrayLike) -> npt.NDArray[np.float64]:
         """The symmetric positive definite mass matrix A(theta), shape (..., N, N)."""
         (th,) = self._states(theta=theta)
         return _finite_result(self._c.mass_matrix(th.ravel()), "mass matrix").reshape(th.shape + (self.n,))
 
-    def accelerations(self, theta, omega, t=0.0, torque=None, joint_torque=None, algorithm="recursive"):
+    def accelerations(self, theta: npt.ArrayLike, omega: npt.ArrayLike, t: float = 0.0,
+                      torque: Optional[TorqueLike] = None, joint_torque: Optional[TorqueLike] = None,
+                      algorithm: str = "recursive") -> npt.NDArray[np.float64]:
         """theta_ddot, shape (..., N), by the O(N) recursion (or a reference route:
         ``algorithm="cholesky"`` dense solve, ``"cramer"`` seed 000's Cramer's rule).
 
@@ -156,7 +181,9 @@ class Chain:
                                     torque=core_torque(spec, joint), algorithm=algorithm)
         return _finite_result(out, "accelerations").reshape(th.shape)
 
-    def jacobian(self, theta, omega, t=0.0, torque=None, joint_torque=None) -> np.ndarray:
+    def jacobian(self, theta: npt.ArrayLike, omega: npt.ArrayLike, t: float = 0.0,
+                 torque: Optional[TorqueLike] = None,
+                 joint_torque: Optional[TorqueLike] = None) -> npt.NDArray[np.float64]:
         """The exact Jacobian (2N, 2N) of ``(theta_dot, omega_dot)`` with respect to
         ``(theta, omega)``, from the core's variational equations (torques taken as depending on
         time only). At an equilibrium this is the linearisation used for normal modes and LQR."""
@@ -167,7 +194,9 @@ class Chain:
         out = self._c.jacobian(th.tolist(), om.tolist(), t=as_float(t, "t", finite=True), torque=core_torque(spec, joint))
         return _finite_result(out, "Jacobian").reshape(2 * self.n, 2 * self.n)
 
-    def hamilton(self, theta, p, t=0.0, torque=None, joint_torque=None):
+    def hamilton(self, theta: npt.ArrayLike, p: npt.ArrayLike, t: float = 0.0,
+                 torque: Optional[TorqueLike] = None,
+                 joint_torque: Optional[TorqueLike] = None) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
         """Hamilton's equations: ``(theta_dot, p_dot)``, each of shape (..., N)."""
         th, pp = self._states(theta=theta, p=p)
         spec, joint = normalise_torque(torque, joint_torque, self.n)
@@ -175,45 +204,46 @@ class Chain:
         td, pd = _finite_result(td, "rates theta_dot"), _finite_result(pd, "rates p_dot")
         return td.reshape(th.shape), pd.reshape(th.shape)
 
-    def momenta(self, theta, omega) -> np.ndarray:
+    def momenta(self, theta: npt.ArrayLike, omega: npt.ArrayLike) -> npt.NDArray[np.float64]:
         """Canonical momenta p = A(theta) omega, shape (..., N)."""
         th, om = self._states(theta=theta, omega=omega)
         return _finite_result(self._c.momenta(th.ravel(), om.ravel()), "momenta").reshape(th.shape)
 
-    def velocities(self, theta, p) -> np.ndarray:
+    def velocities(self, theta: npt.ArrayLike, p: npt.ArrayLike) -> npt.NDArray[np.float64]:
         """Angular velocities omega = A(theta)^-1 p, shape (..., N)."""
         th, pp = self._states(theta=theta, p=p)
         return _finite_result(self._c.velocities(th.ravel(), pp.ravel()), "velocities").reshape(th.shape)
 
-    def _energies(self, theta, omega):
+    def _energies(self, theta: npt.ArrayLike,
+                  omega: npt.ArrayLike) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
         th, om = self._states(theta=theta, omega=omega)
         kin, pot = self._c.energies(th.ravel(), om.ravel())
         kin, pot = _finite_result(kin, "kinetic energy"), _finite_result(pot, "potential energy")
         shape = th.shape[:-1]
         return kin.reshape(shape), pot.reshape(shape)
 
-    def energy(self, theta, omega):
+    def energy(self, theta: npt.ArrayLike, omega: npt.ArrayLike) -> Union[float, npt.NDArray[np.float64]]:
         """Total energy T + U (U = 0 at the pivot's height; hanging at rest is negative)."""
         kin, pot = self._energies(theta, omega)
         e = kin + pot
         return float(e) if e.ndim == 0 else e
 
-    def kinetic_energy(self, theta, omega):
+    def kinetic_energy(self, theta: npt.ArrayLike, omega: npt.ArrayLike) -> Union[float, npt.NDArray[np.float64]]:
         kin, _ = self._energies(theta, omega)
         return float(kin) if kin.ndim == 0 else kin
 
-    def potential_energy(self, theta):
+    def potential_energy(self, theta: npt.ArrayLike) -> Union[float, npt.NDArray[np.float64]]:
         th = as_state(theta, "theta", self.n)
         _, pot = self._energies(th, np.zeros_like(th))
         return float(pot) if pot.ndim == 0 else pot
 
-    def positions(self, theta) -> np.ndarray:
+    def positions(self, theta: npt.ArrayLike) -> npt.NDArray[np.float64]:
         """Joint positions, shape (..., N, 2): row i is the far end of link i (the bob of a point
         mass); the pivot is the origin, y points up."""
         (th,) = self._states(theta=theta)
         return self._c.positions(th.ravel(), com=False).reshape(th.shape + (2,))
 
-    def com_positions(self, theta) -> np.ndarray:
+    def com_positions(self, theta: npt.ArrayLike) -> npt.NDArray[np.float64]:
         """Centre-of-mass positions, shape (..., N, 2)."""
         (th,) = self._states(theta=theta)
         return self._c.positions(th.ravel(), com=True).reshape(th.shape + (2,))

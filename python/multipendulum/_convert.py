@@ -7,18 +7,24 @@ a float. ``TypeError`` is left to Python itself, for calls with missing or unkno
 from __future__ import annotations
 
 import math
+from typing import Any, Union
 
 import numpy as np
+import numpy.typing as npt
 
 from .errors import InputError
 
+#: An integer argument: a Python ``int`` or a NumPy integer (both are accepted where an index or
+#: a count is asked for).
+Integer = Union[int, "np.integer[Any]"]
 
-def _shown(x) -> str:
+
+def _shown(x: object) -> str:
     text = repr(x)
     return f"{type(x).__name__} {text if len(text) <= 60 else text[:57] + '...'}"
 
 
-def as_floats(x, name: str) -> np.ndarray:
+def as_floats(x: object, name: str) -> npt.NDArray[np.float64]:
     """float64, C-contiguous, from a number or a (nested, rectangular) sequence of real numbers;
     anything else is an :class:`InputError` naming ``name``."""
     try:
@@ -30,7 +36,7 @@ def as_floats(x, name: str) -> np.ndarray:
     return np.asarray(a, dtype=np.float64, order="C")
 
 
-def as_float(x, name: str, finite: bool = False) -> float:
+def as_float(x: object, name: str, finite: bool = False) -> float:
     """A single real number (NaN and inf pass unless ``finite``: the core checks its ranges)."""
     if type(x) is float and (not finite or math.isfinite(x)):
         return x  # the common case, without NumPy's overhead

@@ -4,13 +4,15 @@ re-exported by :mod:`multipendulum.chaos`."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Optional
 
 import numpy as np
+import numpy.typing as npt
 
 import multipendulum._core as _core
 from ._chain import Chain, as_state, check_chain
-from ._convert import as_float
-from ._torque import core_torque, normalise_torque
+from ._convert import Integer, as_float
+from ._torque import TorqueLike, core_torque, normalise_torque
 from .errors import InputError
 
 
@@ -19,16 +21,16 @@ class LyapunovResult:
     """``exponents`` (k,) in 1/s, largest first; ``times`` (R,) of the re-orthonormalisations and
     ``history`` (R, k) of the running estimates, to judge convergence."""
 
-    exponents: np.ndarray
-    times: np.ndarray
-    history: np.ndarray
+    exponents: npt.NDArray[np.float64]
+    times: npt.NDArray[np.float64]
+    history: npt.NDArray[np.float64]
 
     @property
     def largest(self) -> float:
         return float(self.exponents[0])
 
 
-def _link(link, n):
+def _link(link: Optional[Integer], n: int) -> Optional[int]:
     if link is None:
         return None
     if not isinstance(link, (int, np.integer)) or not 0 <= link < n:
@@ -36,7 +38,9 @@ def _link(link, n):
     return int(link)
 
 
-def lyapunov(chain: Chain, theta0, omega0, t_end, dt=0.005, k=None, renorm_every=10, torque=None) -> LyapunovResult:
+def lyapunov(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: float, dt: float = 0.005,
+             k: Optional[Integer] = None, renorm_every: Integer = 10,
+             torque: Optional[TorqueLike] = None) -> LyapunovResult:
     """The ``k`` largest Lyapunov exponents (default: the full spectrum, k = 2N).
 
     Integrates the variational (tangent) equations of the Lagrangian form with rk4 at step ``dt``

@@ -4,16 +4,23 @@ from __future__ import annotations
 import os
 import time
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, Callable, Dict, List, Optional, Sequence, Tuple, Union, cast
 
 import numpy as np
+import numpy.typing as npt
 
 import multipendulum._core as _core
 from ._chain import Chain, as_state
-from ._convert import as_float, as_floats
+from ._convert import Integer, as_float, as_floats
 from ._lyapunov import lyapunov, trustworthy_until
-from ._torque import core_torque, normalise_torque, torque_object
+from ._torque import TorqueLike, core_torque, normalise_torque, torque_object
 from .checkpoint import Archive, Writer, cadence, load_checkpoint
 from .errors import InputError, IntegrationError
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+    from ._files import PathLike
 
 METHODS = tuple(_core.METHODS)
 #: Per method, as the core states it: declared ``order``, ``symplectic``, ``implicit``,
@@ -28,11 +35,11 @@ class Flip:
     """Event: link ``link`` (None: any link) goes over the top, ``|theta| = pi``. Terminal by
     default: the run stops there (``sol.stopped_at``)."""
 
-    link: object = None
+    link: Optional[Integer] = None
     direction: int = 1
     terminal: bool = True
 
-    def _spec(self, n):
+    def _spec(self, n: int) -> _core.Event:
         if self.link is not None and not (isinstance(self.link, (int, np.integer)) and 0 <= self.link < n):
             raise InputError(f"Flip.link must be an integer in [0, {n}) or None, got {self.link!r}")
         return _core.Event.flip(None if self.link is None else int(self.link), direction=_direction(self.direction),
@@ -45,14 +52,14 @@ class Crossing:
     downward, 0 both); recorded, or stopping the run when ``terminal``. ``theta``/``omega``: N
     coefficients (default zeros). E.g. ``Crossing(theta=[1, 0])``: theta_1 passes 0 upward."""
 
-    theta: object = None
-    omega: object = None
+    theta: Optional[npt.ArrayLike] = None
+    omega: Optional[npt.ArrayLike] = None
     constant: float = 0.0
     direction: int = 1
     terminal: bool = False
 
-    def _spec(self, n):
-        coef = []
+    def _spec(self, n: int) -> _core.Event:
+        coef: List[List[float]] = []
         for name, v in (("theta", self.theta), ("omega", self.omega)):
             a = np.zeros(n) if v is None else as_floats(v, f"Crossing.{name}")
             if a.shape != (n,):
@@ -69,17 +76,17 @@ class Event:
     stopping the run when ``terminal``. Called from Rust at every step's end and while
     root finding, so it is slower than :class:`Flip` / :class:`Crossing`. Single runs only."""
 
-    g: object
+    g: Callable[[float, npt.NDArray[np.float64], npt.NDArray[np.float64]], float]
     direction: int = 1
     terminal: bool = False
 
-    def _spec(self, n):
+    def _spec(self, n: int) -> _core.Event:
         if not callable(self.g):
             raise InputError(f"Event.g must be callable as g(t, theta, omega), got {type(self.g).__name__}")
         return _core.Event.function(self.g, direction=_direction(self.direction), terminal=bool(self.terminal))
 
 
-def _direction(d) -> int:
+def _direction(d: object) -> int:
     if isinstance(d, bool) or not isinstance(d, (int, np.integer)) or d not in (-1, 0, 1):
         raise InputError(f"direction must be -1, 0 or +1, got {d!r}")
     return int(d)
@@ -89,13 +96,13 @@ def _direction(d) -> int:
 class EventRecord:
     """The crossings of one event: times (K,), and theta, omega, p (K, N) there."""
 
-    t: np.ndarray
-    theta: np.ndarray
-    omega: np.ndarray
-    p: np.ndarray
+    t: npt.NDArray[np.float64]
+    theta: npt.NDArray[np.float64]
+    omega: npt.NDArray[np.float64]
+    p: npt.NDArray[np.float64]
 
 
-def _records(hits, count, n):
+def _records(hits: Sequence[Sequence[Any]], count: int, n: int) -> List[EventRecord]:
     out = []
     for i in range(count):
         mine = [h for h in hits if h[0] == i]
@@ -108,15 +115,15 @@ def _records(hits, count, n):
 class Stats:
     """Counters of a run (arrays of shape (B,) for a batch run)."""
 
-    steps: object
-    rejected: object
-    evaluations: object
-    iterations: object
-    energy_error: object
+    steps: Union[int, npt.NDArray[np.int64]]
+    rejected: Union[int, npt.NDArray[np.int64]]
+    evaluations: Union[int, npt.NDArray[np.int64]]
+    iterations: Union[int, npt.NDArray[np.int64]]
+    energy_error: Union[float, npt.NDArray[np.float64]]
     wall_time: float
 
     @classmethod
-    def _from(cls, d, batch, wall):
+    def _from(cls, d: Dict[str, Any], batch: bool, wall: float) -> Stats:
         conv = (lambda v: v.astype(np.int64)) if batch else (lambda v: int(v[0]))
         return cls(conv(d["steps"]), conv(d["rejected"]), conv(d["evaluations"]), conv(d["iterations"]),
                    d["energy_error"] if batch else float(d["energy_error"][0]), wall)
@@ -130,33 +137,41 @@ class Solution:
     t = 0, so ``energy - energy[0] - work`` is the integrator's energy error.
     """
 
-    def __init__(self, chain, method, form, data, batch_shape, stats, n_events=0):
+    # Set by the run that made it: the torque to recompute with (None for a Python function) and
+    # its convention, and the run's rtol.
+    _torque: Optional[TorqueLike]
+    _joint: bool
+    _rtol: float
+
+    def __init__(self, chain: Chain, method: str, form: str, data: Dict[str, Any], batch_shape: Tuple[int, ...],
+                 stats: Stats, n_events: int = 0) -> None:
         self.chain, self.method, self.form, self.stats = chain, method, form, stats
         per_run = [_records(h, n_events, chain.n) for h in data["events"]]
         #: One :class:`EventRecord` per event given (a list of such lists for a batch run).
-        self.events = per_run if batch_shape else per_run[0]
+        self.events: Union[List[EventRecord], List[List[EventRecord]]] = per_run if batch_shape else per_run[0]
         #: The time a terminal event stopped the run, or None (a list for a batch run).
-        self.stopped_at = data["stopped_at"] if batch_shape else data["stopped_at"][0]
-        self.t = data["t"]
+        self.stopped_at: Union[Optional[float], List[Optional[float]]] = (
+            data["stopped_at"] if batch_shape else data["stopped_at"][0])
+        self.t: npt.NDArray[np.float64] = data["t"]
         T, n = self.t.size, chain.n
         shape = batch_shape + (T,)
-        self.theta = data["theta"].reshape(shape + (n,))
-        self.omega = data["omega"].reshape(shape + (n,))
-        self.p = data["p"].reshape(shape + (n,))
-        self.energy = data["energy"].reshape(shape)
-        self.work = data["work"].reshape(shape)
-        self._energy_error = data["energy_error"].reshape(shape)
-        self._positions = None
+        self.theta: npt.NDArray[np.float64] = data["theta"].reshape(shape + (n,))
+        self.omega: npt.NDArray[np.float64] = data["omega"].reshape(shape + (n,))
+        self.p: npt.NDArray[np.float64] = data["p"].reshape(shape + (n,))
+        self.energy: npt.NDArray[np.float64] = data["energy"].reshape(shape)
+        self.work: npt.NDArray[np.float64] = data["work"].reshape(shape)
+        self._energy_error: npt.NDArray[np.float64] = data["energy_error"].reshape(shape)
+        self._positions: Optional[npt.NDArray[np.float64]] = None
 
     @property
-    def positions(self) -> np.ndarray:
+    def positions(self) -> npt.NDArray[np.float64]:
         """Joint positions (..., T, N, 2), computed by the core on first use."""
         if self._positions is None:
             self._positions = self.chain.positions(self.theta)
         return self._positions
 
     @property
-    def energy_error(self) -> np.ndarray:
+    def energy_error(self) -> npt.NDArray[np.float64]:
         """The energy error at each output, as the core defines it once for every report:
         ``|E(t) - E(0) - W(t)| / S(t)`` against the initial state, with the scale
         ``S = g sum |h_i| + max T`` (the potential well's depth plus the largest kinetic energy so
@@ -167,7 +182,7 @@ class Solution:
     def n(self) -> int:
         return self.chain.n
 
-    def trustworthy_until(self, tolerance: float = 1e-2, horizon: float = 100.0):
+    def trustworthy_until(self, tolerance: float = 1e-2, horizon: float = 100.0) -> Optional[float]:
         """How long this run stays within ``tolerance`` (radians) of the true motion:
         ``ln(tolerance / eps) / lambda_max``, with lambda_max from the variational equations over
         the run (at most ``horizon`` seconds of it) and eps the run's own error level (dop853:
@@ -184,16 +199,20 @@ class Solution:
         # Below ~0.05/s over this span the separation is not exponential: regular motion.
         return trustworthy_until(lam if lam > 0.05 else 0.0, tolerance, eps)
 
-    def __repr__(self):
+    def __repr__(self) -> str:
         return (f"Solution(method={self.method!r}, n={self.n}, outputs={self.t.size}, "
                 f"theta shape={self.theta.shape}, steps={self.stats.steps}, "
                 f"energy_error={self.stats.energy_error})")
 
 
-def simulate(chain: Chain, theta0, omega0, t_end, method=DEFAULTS["method"], dt=None, rtol=DEFAULTS["rtol"],
-             atol=DEFAULTS["atol"], torque=None, joint_torque=None, t_eval=None, form=None, adaptive=True,
-             max_steps=int(DEFAULTS["max_steps"]), progress=None, events=None, checkpoint=None, checkpoint_every=None,
-             checkpoint_seconds=None, checkpoint_info=None) -> Solution:
+def simulate(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: float, method: str = DEFAULTS["method"],
+             dt: Optional[float] = None, rtol: float = DEFAULTS["rtol"], atol: float = DEFAULTS["atol"],
+             torque: Optional[TorqueLike] = None, joint_torque: Optional[TorqueLike] = None,
+             t_eval: Optional[npt.ArrayLike] = None, form: Optional[str] = None, adaptive: bool = True,
+             max_steps: Integer = int(DEFAULTS["max_steps"]), progress: Optional[Callable[[float], object]] = None,
+             events: Optional[Sequence[Union[Flip, Crossing, Event]]] = None, checkpoint: Optional[PathLike] = None,
+             checkpoint_every: Optional[Integer] = None, checkpoint_seconds: Optional[float] = None,
+             checkpoint_info: Optional[Dict[str, Any]] = None) -> Solution:
     """Integrate ``chain`` from ``(theta0, omega0)`` at t = 0 to ``t_end`` (seconds).
 
     Methods (:data:`METHODS`): ``"rk4"`` classical Runge–Kutta, order 4, fixed ``dt``;
@@ -293,7 +312,7 @@ def simulate(chain: Chain, theta0, omega0, t_end, method=DEFAULTS["method"], dt=
     return sol
 
 
-def _refuse_nan(data):
+def _refuse_nan(data: Dict[str, Any]) -> None:
     """A last guard against a silent NaN: a run that blew up between its checks (e.g. dop853's
     dense output over a step whose rates overflow) fails as an IntegrationError at that time."""
     for name in ("theta", "omega", "p", "energy"):
@@ -309,8 +328,10 @@ def _refuse_nan(data):
             raise err
 
 
-def _run(chain, th0, om0, run, t_eval, progress, event_specs=(), writer=None, resume=None, wall_before=0.0,
-         batch_shape=()):
+def _run(chain: Chain, th0: npt.NDArray[Any], om0: npt.NDArray[Any], run: Dict[str, Any],
+         t_eval: Optional[npt.NDArray[Any]], progress: Optional[Callable[[float], object]],
+         event_specs: Sequence[_core.Event] = (), writer: Optional[Writer] = None, resume: Optional[bytes] = None,
+         wall_before: float = 0.0, batch_shape: Tuple[int, ...] = ()) -> Solution:
     """Call the core with checked arguments (``run``: as stored in a checkpoint archive)."""
     spec = run["torque"]
     spec = None if spec is None else tuple(spec)
@@ -336,7 +357,8 @@ def _run(chain, th0, om0, run, t_eval, progress, event_specs=(), writer=None, re
     return sol
 
 
-def resume(path, progress=None, checkpoint: bool = True, any_version: bool = False):
+def resume(path: Union[PathLike, Archive], progress: Optional[Callable[[float], object]] = None,
+           checkpoint: bool = True, any_version: bool = False) -> Solution:
     """Continue the run saved in the checkpoint archive ``path`` to its ``t_end`` and return its
     :class:`~multipendulum.Solution`: all of it from t = 0, bit-for-bit the arrays the
     uninterrupted run would have returned. ``checkpoint`` (default True): keep writing
@@ -361,7 +383,8 @@ def resume(path, progress=None, checkpoint: bool = True, any_version: bool = Fal
     every = meta["checkpoint"]
     writer = None
     if checkpoint:
-        writer = Writer(archive.path, chain, a["theta0"], a["omega0"], t_eval, run, every["every_steps"],
+        # An Archive from load_checkpoint always has its path (one built by hand may not).
+        writer = Writer(cast("Path", archive.path), chain, a["theta0"], a["omega0"], t_eval, run, every["every_steps"],
                         every["every_seconds"], info=meta.get("info"), wall_before=float(meta.get("wall_time", 0.0)))
     return _run(chain, a["theta0"], a["omega0"], run, t_eval, progress, writer=writer, resume=archive.state(),
                 wall_before=float(meta.get("wall_time", 0.0)))

@@ -3,16 +3,23 @@ from __future__ import annotations
 
 import inspect
 from dataclasses import dataclass
+from typing import Any, Callable, List, Optional, Tuple, Union
 
 import numpy as np
+import numpy.typing as npt
 
 import multipendulum._core as _core
 
 from ._convert import as_floats
 from .errors import InputError
 
+#: A torque as the core takes it, normalised to plain data (a checkpoint keeps it as JSON): a
+#: tuple whose first entry names the kind -- ``("constant", values)``, ``("sinusoid", amplitude,
+#: frequency, phase, offset)``, ``("table", t, values, kind)`` or ``("callable", f, with_state)``.
+TorqueSpec = Tuple[Any, ...]
 
-def _per_link(x, name, n):
+
+def _per_link(x: npt.ArrayLike, name: str, n: int) -> List[float]:
     a = as_floats(x, name)
     a = np.broadcast_to(a, (n,)) if a.ndim == 0 else a
     if a.shape != (n,):
@@ -25,12 +32,12 @@ class Sinusoid:
     """``offset_i + amplitude_i sin(frequency_i t + phase_i)``; frequency in rad/s. Each field is a
     number (same for every link) or one value per link. Evaluated in Rust."""
 
-    amplitude: object
-    frequency: object
-    phase: object = 0.0
-    offset: object = 0.0
+    amplitude: npt.ArrayLike
+    frequency: npt.ArrayLike
+    phase: npt.ArrayLike = 0.0
+    offset: npt.ArrayLike = 0.0
 
-    def _spec(self, n):
+    def _spec(self, n: int) -> TorqueSpec:
         return ("sinusoid", *(_per_link(getattr(self, f), f, n) for f in ("amplitude", "frequency", "phase", "offset")))
 
 
@@ -40,11 +47,11 @@ class Table:
     ``kind="linear"`` or ``"cubic"`` (natural spline), held at the end values outside the table.
     Evaluated in Rust."""
 
-    t: object
-    values: object
+    t: npt.ArrayLike
+    values: npt.ArrayLike
     kind: str = "linear"
 
-    def _spec(self, n):
+    def _spec(self, n: int) -> TorqueSpec:
         t = as_floats(self.t, "t")
         v = as_floats(self.values, "values")
         if self.kind not in ("linear", "cubic"):
@@ -57,7 +64,19 @@ class Table:
         return ("table", t.tolist(), v.ravel().tolist(), self.kind)
 
 
-def _arity(f) -> bool:
+#: A torque as the API takes it (``torque=`` / ``joint_torque=``): N values (constant), a built-in
+#: evaluated in Rust, or a Python function of time, ``f(t)``, or of the state, ``f(t, theta, omega)``
+#: (theta and omega as float64 arrays (N,)), returning N values.
+TorqueLike = Union[
+    npt.ArrayLike,
+    Sinusoid,
+    Table,
+    Callable[[float], npt.ArrayLike],
+    Callable[[float, npt.NDArray[np.float64], npt.NDArray[np.float64]], npt.ArrayLike],
+]
+
+
+def _arity(f: Callable[..., object]) -> bool:
     """True for ``f(t, theta, omega)``, False for ``f(t)``."""
     try:
         params = [p for p in inspect.signature(f).parameters.values()
@@ -72,7 +91,8 @@ def _arity(f) -> bool:
     raise InputError(f"a torque function must take (t) or (t, theta, omega), got {len(params)} required arguments")
 
 
-def normalise_torque(torque, joint_torque, n):
+def normalise_torque(torque: Optional[TorqueLike], joint_torque: Optional[TorqueLike],
+                     n: int) -> Tuple[Optional[TorqueSpec], bool]:
     """-> (spec tuple for the core or None, joint convention?)."""
     if torque is not None and joint_torque is not None:
         raise InputError("give torque (generalized, on absolute angles) or joint_torque (joint motors), not both")
@@ -95,7 +115,7 @@ def normalise_torque(torque, joint_torque, n):
     return ("constant", a.tolist()), joint
 
 
-def torque_object(spec, n: int):
+def torque_object(spec: Optional[TorqueSpec], n: int) -> Union[None, npt.NDArray[np.float64], Sinusoid, Table]:
     """The user-level torque (array, Sinusoid, Table) for a built-in spec as the core takes it."""
     if spec is None:
         return None
@@ -110,7 +130,7 @@ def torque_object(spec, n: int):
     raise InputError(f"checkpoint: unknown torque kind {kind!r}")
 
 
-def core_torque(spec, joint: bool):
+def core_torque(spec: Optional[TorqueSpec], joint: bool) -> Optional[_core.Torque]:
     """The core's typed torque (:class:`multipendulum._core.Torque`) for a normalised spec, in
     the joint-motor convention when ``joint``; None for no torque. Specs stay plain data (a
     checkpoint keeps them as JSON); only this crosses into the core."""

@@ -3,28 +3,43 @@ the Rust core, in parallel and without the GIL; this module validates and shapes
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, List, Optional, Sequence, Tuple, Union, cast
 
 import numpy as np
+import numpy.typing as npt
 
 import multipendulum._core as _core
 from ._chain import Chain, as_state, check_chain
-from ._convert import as_float, as_floats
-from ._torque import core_torque, normalise_torque
+from ._convert import Integer, as_float, as_floats
+from ._torque import TorqueLike, core_torque, normalise_torque
 from ._lyapunov import LyapunovResult, _link, lyapunov, trustworthy_until
-from ._simulate import Crossing, Flip, simulate
+from ._simulate import Crossing, EventRecord, Flip, simulate
 from .errors import InputError
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure, SubFigure
+    from zarr import Array as ZarrArray
+
+    from ._files import PathLike
+
+#: ``(kind_x, link_x, kind_y, link_y)``: the two initial values a flip map varies, each
+#: ``"theta"`` or ``"omega"`` of a link.
+Vary = Tuple[str, Integer, str, Integer]
 
 __all__ = ["EnsembleResult", "ensemble", "PoincareSection", "poincare", "plot_poincare", "LyapunovResult", "lyapunov", "trustworthy_until", "flip_energy_threshold", "flip_times", "flip_map", "FlipMap"]
 
 
-def flip_energy_threshold(chain: Chain, link=None) -> float:
+def flip_energy_threshold(chain: Chain, link: Optional[Integer] = None) -> float:
     """The least energy (J) with which link ``link`` (None: any link) can go over the top:
     ``g h_k - g sum_{i != k} |h_i|``. A chain released with less can never flip it."""
     check_chain(chain)
     return _core.flip_energy_threshold(chain._c, _link(link, chain.n))
 
 
-def flip_times(chain: Chain, theta0, omega0=None, t_max=10.0, dt=0.01, link=None, torque=None) -> np.ndarray:
+def flip_times(chain: Chain, theta0: npt.ArrayLike, omega0: Optional[npt.ArrayLike] = None, t_max: float = 10.0,
+               dt: float = 0.01, link: Optional[Integer] = None,
+               torque: Optional[TorqueLike] = None) -> npt.NDArray[np.float64]:
     """First time each initial state's link ``link`` (None: any link) reaches |theta| = pi,
     by rk4 at step ``dt`` and root finding within the step; ``inf`` where it never does by
     ``t_max``. ``theta0`` (..., N); ``omega0`` defaults to rest. Parallel on all cores."""
@@ -45,20 +60,21 @@ class FlipMap:
     quantity) and ``y[i]``; ``inf`` never flipped by ``t_max``. ``allowed[i, j]`` is False where
     the energy bound forbids any flip."""
 
-    x: np.ndarray
-    y: np.ndarray
-    times: np.ndarray
-    allowed: np.ndarray
+    x: npt.NDArray[np.float64]
+    y: npt.NDArray[np.float64]
+    #: NumPy arrays, or the on-disk Zarr arrays of a map written to a store (:func:`sweep_flip_map`).
+    times: Union[npt.NDArray[np.float64], ZarrArray]
+    allowed: Union[npt.NDArray[np.bool_], ZarrArray]
     t_max: float
     threshold: float
 
 
-def flip_threshold(chain: Chain, link, torque) -> float:
+def flip_threshold(chain: Chain, link: Optional[Integer], torque: Optional[TorqueLike]) -> float:
     """The energy bound a map marks: none (-inf) for a driven chain, which can gain energy."""
     return flip_energy_threshold(chain, link) if torque is None else -np.inf
 
 
-def _check_vary(vary, n):
+def _check_vary(vary: Vary, n: int) -> Tuple[str, int, str, int]:
     try:
         kx, ix, ky, iy = vary
     except (TypeError, ValueError):
@@ -72,7 +88,9 @@ def _check_vary(vary, n):
     return kx, int(ix), ky, int(iy)
 
 
-def _grid(yb, xb, vary, th_base, om_base):
+def _grid(yb: npt.NDArray[np.float64], xb: npt.NDArray[np.float64], vary: Tuple[str, int, str, int],
+          th_base: npt.NDArray[np.float64],
+          om_base: npt.NDArray[np.float64]) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
     # The initial states of a map's grid (values copied, never computed); also per Dask chunk.
     kx, ix, ky, iy = vary
     X, Y = np.meshgrid(xb, yb)
@@ -84,8 +102,10 @@ def _grid(yb, xb, vary, th_base, om_base):
     return theta0, omega0
 
 
-def flip_map(chain: Chain, x, y, t_max=10.0, dt=0.01, vary=("theta", 0, "theta", 1), base_theta=None,
-             base_omega=None, link=None, torque=None) -> FlipMap:
+def flip_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_max: float = 10.0, dt: float = 0.01,
+             vary: Vary = ("theta", 0, "theta", 1), base_theta: Optional[npt.ArrayLike] = None,
+             base_omega: Optional[npt.ArrayLike] = None, link: Optional[Integer] = None,
+             torque: Optional[TorqueLike] = None) -> FlipMap:
     """Flip-time map over a grid of two initial values (radians or rad/s).
 
     ``vary=(kind_x, index_x, kind_y, index_y)`` names the two varied quantities, each ``"theta"``
@@ -105,7 +125,7 @@ def flip_map(chain: Chain, x, y, t_max=10.0, dt=0.01, vary=("theta", 0, "theta",
     theta0, omega0 = _grid(y, x, vary, th_base, om_base)
     times = flip_times(chain, theta0, omega0, t_max=t_max, dt=dt, link=link, torque=torque)
     threshold = flip_threshold(chain, link, torque)
-    allowed = chain.energy(theta0, omega0) >= threshold
+    allowed = cast("npt.NDArray[np.bool_]", chain.energy(theta0, omega0) >= threshold)  # theta0 has a grid's axes
     return FlipMap(x, y, times, allowed, float(t_max), threshold)
 
 @dataclass(frozen=True)
@@ -113,15 +133,16 @@ class PoincareSection:
     """Points ``(theta, p)`` of link ``record`` each time link ``through`` passes theta = 0
     upward; ``t`` their times; ``energy`` of the run."""
 
-    t: np.ndarray
-    theta: np.ndarray
-    p: np.ndarray
+    t: npt.NDArray[np.float64]
+    theta: npt.NDArray[np.float64]
+    p: npt.NDArray[np.float64]
     energy: float
     record: int
     through: int
 
 
-def poincare(chain: Chain, theta0, omega0, t_end, through=0, record=1, rtol=1e-10, atol=1e-12) -> list:
+def poincare(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: float, through: int = 0,
+             record: int = 1, rtol: float = 1e-10, atol: float = 1e-12) -> List[PoincareSection]:
     """Poincaré sections: ``(theta_record, p_record)`` whenever ``theta_through`` crosses 0 upward,
     located by root finding on dop853's dense output. ``theta0``/``omega0`` may carry a batch axis
     (several energies), run in parallel; returns a list of :class:`PoincareSection`."""
@@ -137,13 +158,14 @@ def poincare(chain: Chain, theta0, omega0, t_end, through=0, record=1, rtol=1e-1
     coef[through] = 1.0
     t_end = as_float(t_end, "t_end")
     sol = simulate(chain, th0, om0, t_end, rtol=rtol, atol=atol, t_eval=[t_end], events=[Crossing(theta=coef)])
-    runs = sol.events if th0.ndim == 2 else [sol.events]
+    runs = cast("List[List[EventRecord]]", sol.events if th0.ndim == 2 else [sol.events])
     energies = np.atleast_1d(sol.energy[..., 0])
     return [PoincareSection(r[0].t, r[0].theta[:, record], r[0].p[:, record], float(e), record, through)
             for r, e in zip(runs, energies)]
 
 
-def plot_poincare(sections, path=None, ax=None):
+def plot_poincare(sections: Sequence[PoincareSection], path: Optional[PathLike] = None,
+                  ax: Optional[Axes] = None) -> Union[Figure, SubFigure]:
     """Scatter the sections, one colour per energy; returns the figure (saved to ``path`` if given)."""
     import matplotlib
 
@@ -151,7 +173,7 @@ def plot_poincare(sections, path=None, ax=None):
         matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig = None
+    fig: Optional[Union[Figure, SubFigure]] = None
     if ax is None:
         fig, ax = plt.subplots(figsize=(7, 6))
     colours = plt.cm.viridis(np.linspace(0, 0.95, len(sections)))
@@ -165,8 +187,9 @@ def plot_poincare(sections, path=None, ax=None):
     ax.legend(markerscale=4, fontsize=8)
     fig = fig or ax.figure
     if path is not None:
-        fig.savefig(path, dpi=110, bbox_inches="tight")
-        plt.close(fig)
+        # (given the Axes of a SubFigure, which cannot be saved on its own, this fails)
+        fig.savefig(path, dpi=110, bbox_inches="tight")  # type: ignore[union-attr]
+        plt.close(fig)  # type: ignore[arg-type]
     return fig
 
 
@@ -177,16 +200,17 @@ class EnsembleResult:
     link went over the top (inf: never)."""
 
     t_end: float
-    theta: np.ndarray
-    omega: np.ndarray
-    p: np.ndarray
-    energy_error: np.ndarray
-    steps: np.ndarray
-    first_flip: np.ndarray
+    theta: npt.NDArray[np.float64]
+    omega: npt.NDArray[np.float64]
+    p: npt.NDArray[np.float64]
+    energy_error: npt.NDArray[np.float64]
+    steps: npt.NDArray[np.int64]
+    first_flip: npt.NDArray[np.float64]
 
 
-def ensemble(chain: Chain, theta0, omega0, t_end, method="dop853", dt=None, rtol=1e-10, atol=1e-12, torque=None,
-             joint_torque=None) -> EnsembleResult:
+def ensemble(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: float, method: str = "dop853",
+             dt: Optional[float] = None, rtol: float = 1e-10, atol: float = 1e-12, torque: Optional[TorqueLike] = None,
+             joint_torque: Optional[TorqueLike] = None) -> EnsembleResult:
     """Run B trajectories (rows of ``theta0``, ``omega0``: (B, N)) in parallel in the Rust core
     and keep only their final states and per-trajectory reductions: memory O(B N), not
     O(B N steps). Results are identical whatever the number of threads."""
@@ -198,6 +222,7 @@ def ensemble(chain: Chain, theta0, omega0, t_end, method="dop853", dt=None, rtol
         raise InputError(f"theta0 and omega0 must both have shape (B, {chain.n}), got {th0.shape} and {om0.shape}")
     sol = simulate(chain, th0, om0, t_end, method=method, dt=dt, rtol=rtol, atol=atol, torque=torque,
                    joint_torque=joint_torque, t_eval=[t_end], events=[Flip(terminal=False)])
-    first = np.array([rec[0].t[0] if rec[0].t.size else np.inf for rec in sol.events])
+    first = np.array([rec[0].t[0] if rec[0].t.size else np.inf
+                      for rec in cast("List[List[EventRecord]]", sol.events)])  # a batch: a list per trajectory
     return EnsembleResult(float(t_end), sol.theta[:, -1], sol.omega[:, -1], sol.p[:, -1],
                           np.asarray(sol.stats.energy_error), np.asarray(sol.stats.steps), first)

@@ -27,12 +27,18 @@ import json
 import math
 import time
 from pathlib import Path
-from typing import Any, Dict, Optional
+from typing import TYPE_CHECKING, Any, Dict, Optional, Tuple
 
 import numpy as np
+import numpy.typing as npt
 
 from ._torque import torque_object
 from .errors import InputError
+
+if TYPE_CHECKING:
+    from ._chain import Chain
+    from ._convert import Integer
+    from ._files import PathLike
 
 __all__ = ["load_checkpoint", "Archive", "Writer", "FORMAT", "FORMAT_VERSION"]
 
@@ -58,7 +64,8 @@ class Archive:
     (dict of float64 arrays), ``t`` the time reached, ``t_end``, ``method``, ``path``, and
     ``scenario_info`` / ``cli`` when ``multipendulum run`` wrote it."""
 
-    def __init__(self, metadata: Dict[str, Any], arrays: Dict[str, np.ndarray], path: Optional[Path] = None):
+    def __init__(self, metadata: Dict[str, Any], arrays: Dict[str, npt.NDArray[Any]],
+                 path: Optional[Path] = None) -> None:
         self.metadata, self.arrays, self.path = metadata, arrays, path
 
     @property
@@ -82,7 +89,7 @@ class Archive:
         """The run's state as the core serialised it (and takes it back)."""
         return self.arrays["state"].tobytes()
 
-    def chain(self):
+    def chain(self) -> Chain:
         from ._chain import Chain
 
         a = self.arrays
@@ -102,8 +109,10 @@ class Writer:
     """Called by the core with each checkpoint; writes the archive atomically. Keeps the fixed
     part (chain, arguments, t_eval) and adds the state, the counters and the wall time so far."""
 
-    def __init__(self, path, chain, theta0, omega0, t_eval, run: Dict[str, Any], every_steps, every_seconds,
-                 info=None, wall_before: float = 0.0):
+    def __init__(self, path: PathLike, chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike,
+                 t_eval: Optional[npt.ArrayLike], run: Dict[str, Any], every_steps: Optional[int],
+                 every_seconds: Optional[float], info: Optional[Dict[str, Any]] = None,
+                 wall_before: float = 0.0) -> None:
         self.path = Path(path)
         self.fixed = {
             "lengths": chain.lengths, "masses": chain.masses, "com": chain.com, "inertia": chain.inertia,
@@ -128,7 +137,7 @@ class Writer:
         meta["created"] = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
         meta["wall_time"] = self.wall_before + (time.perf_counter() - self.start)
         meta["state"] = {"t": float(t), "steps": int(steps)}
-        arrays = dict(self.fixed)
+        arrays: Dict[str, Any] = dict(self.fixed)
         arrays["state"] = np.frombuffer(state, dtype=np.uint8)
         with atomic_path(self.path) as tmp:
             with open(tmp, "wb") as f:
@@ -136,7 +145,7 @@ class Writer:
         self.saved += 1
 
 
-def cadence(every_steps, every_seconds):
+def cadence(every_steps: Optional[Integer], every_seconds: Optional[float]) -> Tuple[Optional[int], Optional[float]]:
     """Checked ``(every_steps, every_seconds)`` as the core takes them; neither given: every
     :data:`DEFAULT_SECONDS` seconds."""
     if every_steps is not None and (isinstance(every_steps, bool) or not isinstance(every_steps, (int, np.integer))
@@ -158,7 +167,7 @@ def cadence(every_steps, every_seconds):
 # Reading
 
 
-def load_checkpoint(path, any_version: bool = False) -> Archive:
+def load_checkpoint(path: PathLike, any_version: bool = False) -> Archive:
     """Read and check a checkpoint archive. Raises :class:`InputError` naming the problem: no
     such file, not an archive (truncated, corrupt), a missing member, another format version,
     or (unless ``any_version``) another multipendulum version, whose arithmetic may differ.

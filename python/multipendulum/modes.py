@@ -18,12 +18,16 @@ import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Optional, Sequence, Tuple, Union
+from typing import TYPE_CHECKING, Any, Optional, Sequence, Tuple, Union, overload
 
 import numpy as np
+import numpy.typing as npt
 
 from ._chain import Chain, as_state
 from .errors import InputError
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 __all__ = ["NormalModes", "normal_modes", "linearize", "check_equilibrium", "animate_mode", "plot_modes"]
 
@@ -44,32 +48,32 @@ class NormalModes:
     positive; the columns are orthogonal in the mass matrix (``shapes.T @ M @ shapes`` diagonal).
     """
 
-    theta_eq: np.ndarray
-    eigenvalues: np.ndarray
-    shapes: np.ndarray
-    mass_matrix: np.ndarray
+    theta_eq: npt.NDArray[np.float64]
+    eigenvalues: npt.NDArray[np.float64]
+    shapes: npt.NDArray[np.float64]
+    mass_matrix: npt.NDArray[np.float64]
 
     @property
     def n(self) -> int:
         return int(self.eigenvalues.size)
 
     @property
-    def stable(self) -> np.ndarray:
+    def stable(self) -> npt.NDArray[np.bool_]:
         """(N,) bool: True for an oscillating mode (lambda > 0)."""
         return self.eigenvalues > 0
 
     @property
-    def frequencies(self) -> np.ndarray:
+    def frequencies(self) -> npt.NDArray[np.float64]:
         """(N,) angular frequencies sqrt(lambda) in rad/s; 0 for unstable (and neutral) modes."""
         return np.sqrt(np.clip(self.eigenvalues, 0.0, None))
 
     @property
-    def growth_rates(self) -> np.ndarray:
+    def growth_rates(self) -> npt.NDArray[np.float64]:
         """(N,) growth rates sqrt(-lambda) in 1/s of the unstable modes; 0 for the oscillations."""
         return np.sqrt(np.clip(-self.eigenvalues, 0.0, None))
 
     @property
-    def periods(self) -> np.ndarray:
+    def periods(self) -> npt.NDArray[np.float64]:
         """(N,) periods 2 pi / omega in s; inf for unstable (and neutral) modes."""
         with np.errstate(divide="ignore"):
             return np.where(self.stable, 2 * np.pi / np.where(self.stable, self.frequencies, 1.0), np.inf)
@@ -87,12 +91,12 @@ class NormalModes:
             return f"unstable: grows as exp({self.growth_rates[k]:.3g} t)"
         return "neutral (lambda = 0)"
 
-    def __repr__(self):
+    def __repr__(self) -> str:
         parts = ", ".join(self.describe(k) for k in range(self.n))
         return f"NormalModes(theta_eq={np.round(self.theta_eq, 6).tolist()}, {parts})"
 
 
-def check_equilibrium(chain: Chain, theta_eq) -> np.ndarray:
+def check_equilibrium(chain: Chain, theta_eq: npt.ArrayLike) -> npt.NDArray[np.float64]:
     """``theta_eq`` as a float array (N,), after checking that the chain rests there
     (all accelerations zero at omega = 0); :class:`InputError` otherwise."""
     if not isinstance(chain, Chain):
@@ -113,7 +117,7 @@ def check_equilibrium(chain: Chain, theta_eq) -> np.ndarray:
     return th
 
 
-def _stiffness(chain: Chain, th: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
+def _stiffness(chain: Chain, th: npt.NDArray[np.float64]) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
     n = chain.n
     jac = chain.jacobian(th, np.zeros(n))
     M = chain.mass_matrix(th)
@@ -121,7 +125,7 @@ def _stiffness(chain: Chain, th: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
     return M, 0.5 * (K + K.T)  # symmetric in exact arithmetic (the Hessian of the potential)
 
 
-def normal_modes(chain: Chain, theta_eq) -> NormalModes:
+def normal_modes(chain: Chain, theta_eq: npt.ArrayLike) -> NormalModes:
     """Normal modes about the equilibrium ``theta_eq`` (see the module docstring).
 
     Raises :class:`InputError` when ``theta_eq`` is not an equilibrium.
@@ -150,7 +154,8 @@ def normal_modes(chain: Chain, theta_eq) -> NormalModes:
     return NormalModes(th, lam[order], np.ascontiguousarray(V[:, order]), M)
 
 
-def linearize(chain: Chain, theta_eq, inputs: str = "joint") -> Tuple[np.ndarray, np.ndarray]:
+def linearize(chain: Chain, theta_eq: npt.ArrayLike,
+              inputs: str = "joint") -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
     """State-space matrices ``(A, B)`` of the chain about an equilibrium:
     ``x' = A x + B u`` with ``x = (theta - theta_eq, omega)`` (2N,) and ``u`` (N,).
 
@@ -187,7 +192,7 @@ def _mode_title(modes: NormalModes, k: int) -> str:
     return f"mode {k + 1}: neutral"
 
 
-def _equilibrium_name(theta_eq: np.ndarray) -> str:
+def _equilibrium_name(theta_eq: npt.NDArray[np.float64]) -> str:
     up = [bool(round(v / np.pi) % 2) for v in theta_eq]
     if not any(up):
         return "hanging"
@@ -196,8 +201,22 @@ def _equilibrium_name(theta_eq: np.ndarray) -> str:
     return "mixed (" + ", ".join("up" if u else "down" for u in up) + ")"
 
 
-def plot_modes(chain: Chain, theta_eq, path: Optional[PathLike] = None, amplitude: float = 0.35,
-               modes: Optional[Sequence[int]] = None, dpi: float = 110, title: Optional[str] = None):
+# The figure without a path, the path with one.
+@overload
+def plot_modes(chain: Chain, theta_eq: npt.ArrayLike, path: None = None, amplitude: float = 0.35,
+               modes: Optional[Sequence[int]] = None, dpi: float = 110, title: Optional[str] = None) -> Figure: ...
+@overload
+def plot_modes(chain: Chain, theta_eq: npt.ArrayLike, path: PathLike, amplitude: float = 0.35,
+               modes: Optional[Sequence[int]] = None, dpi: float = 110, title: Optional[str] = None) -> Path: ...
+@overload
+def plot_modes(chain: Chain, theta_eq: npt.ArrayLike, path: Optional[PathLike] = None, amplitude: float = 0.35,
+               modes: Optional[Sequence[int]] = None, dpi: float = 110,
+               title: Optional[str] = None) -> Union[Figure, Path]: ...
+
+
+def plot_modes(chain: Chain, theta_eq: npt.ArrayLike, path: Optional[PathLike] = None, amplitude: float = 0.35,
+               modes: Optional[Sequence[int]] = None, dpi: float = 110,
+               title: Optional[str] = None) -> Union[Figure, Path]:
     """Draw each normal mode about ``theta_eq``: the chain at rest (grey) and displaced by
     ``+amplitude`` and ``-amplitude`` (radians, largest link) along the mode's shape.
 
@@ -262,7 +281,7 @@ def plot_modes(chain: Chain, theta_eq, path: Optional[PathLike] = None, amplitud
     return path
 
 
-def animate_mode(chain: Chain, theta_eq, mode: int, path: PathLike, amplitude: float = 0.05,
+def animate_mode(chain: Chain, theta_eq: npt.ArrayLike, mode: int, path: PathLike, amplitude: float = 0.05,
                  t_end: Optional[float] = None, periods: float = 3.0, fps: float = 30, speed: float = 1.0,
                  trail: float = 0.0, dpi: float = 80, **kwargs: Any) -> Path:
     """Animate the motion started along one normal mode (GIF or MP4, by ``path``'s suffix).

@@ -42,16 +42,33 @@ import functools
 import importlib.util
 import math
 import os
-from typing import Any, Dict, Iterator, Optional, Tuple, Union
+from types import ModuleType
+from typing import TYPE_CHECKING, Any, Callable, Dict, Iterator, Mapping, Optional, Tuple, Union, cast
 
 import numpy as np
+import numpy.typing as npt
 
 import multipendulum._core as _core
 from ._chain import Chain, as_state
+from ._convert import Integer
 from ._progress import check as _check_progress
 from ._progress import reporter
-from .chaos import FlipMap, _check_vary, _grid, flip_threshold, flip_times
+from ._torque import TorqueLike
+from .chaos import FlipMap, Vary, _check_vary, _grid, flip_threshold, flip_times
 from .errors import InputError
+
+if TYPE_CHECKING:
+    from distributed import Client
+    from zarr import Array as ZarrArray
+    from zarr import Group as ZarrGroup
+
+    from ._files import PathLike
+
+#: Where the tasks run (see the module docstring): None, a scheduler's name or address, or a
+#: ``distributed.Client``.
+Scheduler = Union[None, str, "Client"]
+#: ``progress=``: None or False (none), True (a bar on stderr) or a callable given the fraction done.
+Progress = Union[None, bool, Callable[[float], object]]
 
 __all__ = ["sweep", "sweep_flip_map", "open_flip_map", "DEFAULT_CHUNK_SIZE"]
 
@@ -62,7 +79,7 @@ _LOCAL = {"sync": "sync", "synchronous": "sync", "processes": "processes"}
 _INSTALL = "pip install 'multipendulum[dask]'  (dask[array], distributed, zarr)"
 
 
-def _dask():
+def _dask() -> Tuple[ModuleType, ModuleType]:
     try:
         import dask
         import dask.array as da
@@ -72,7 +89,7 @@ def _dask():
 
 
 @contextlib.contextmanager
-def _scheduler(scheduler) -> Iterator[Dict[str, Any]]:
+def _scheduler(scheduler: Scheduler) -> Iterator[Dict[str, Any]]:
     """Keyword arguments for ``dask.compute``. Opens (and closes) a client for an address. Local
     threads run in a pool of our own, which is waited for on the way out, so that when a task
     fails no other task is still writing when the caller cleans up."""
@@ -118,17 +135,18 @@ class _LocalProgress:
     """Reports the fraction of a local schedule's tasks finished (Dask's scheduler callbacks run
     in the scheduling thread, for the threaded, synchronous and process schedulers alike)."""
 
-    def __init__(self, report):
+    def __init__(self, report: Callable[[float], object]) -> None:
         from dask.callbacks import Callback
 
         outer = self
 
         class _Hook(Callback):
-            def _start_state(self, dsk, state):
+            def _start_state(self, dsk: Mapping[Any, Any], state: Dict[str, Any]) -> None:
                 outer.total = max(1, len(state["ready"]) + len(state["waiting"]) + len(state.get("running", ())))
                 outer.done = 0
 
-            def _posttask(self, key, result, dsk, state, worker_id):
+            def _posttask(self, key: object, result: object, dsk: Mapping[Any, Any], state: Dict[str, Any],
+                          worker_id: object) -> None:
                 outer.done += 1
                 outer.report(min(outer.done / outer.total, 1.0))
 
@@ -136,7 +154,8 @@ class _LocalProgress:
         self.hook = _Hook()
 
 
-def _compute(dask, how, report, *collections):
+def _compute(dask: ModuleType, how: Dict[str, Any], report: Optional[Callable[[float], object]],
+             *collections: Any) -> Tuple[Any, ...]:
     """``dask.compute(*collections, **how)``, reporting progress to ``report`` (or not, if None)."""
     if report is None:
         return dask.compute(*collections, **how)
@@ -162,13 +181,13 @@ def _check_chunks(rows: int, cols: int, n: int, n_chunks: int) -> None:
                        "use smaller chunks (chunks=rows or (rows, columns))")
 
 
-def _positive_int(value, name) -> int:
+def _positive_int(value: object, name: str) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
         raise InputError(f"{name} must be a positive integer, got {value!r}")
     return int(value)
 
 
-def _check_zarr_path(zarr) -> Optional[str]:
+def _check_zarr_path(zarr: Optional[PathLike]) -> Optional[str]:
     if zarr is None:
         return None
     if importlib.util.find_spec("zarr") is None:
@@ -180,7 +199,7 @@ _KINDS = ("multipendulum.sweep", "multipendulum.flip_map")
 
 
 @contextlib.contextmanager
-def _fresh_store(path: str, kind: str, attrs: dict):
+def _fresh_store(path: str, kind: str, attrs: Dict[str, Any]) -> Iterator[ZarrGroup]:
     """A new Zarr group at ``path`` for this run, removed again if the run fails or is interrupted.
     An existing path is replaced only when it is an empty directory or a store written here
     before: anything else is refused rather than wiped."""
@@ -209,13 +228,16 @@ def _fresh_store(path: str, kind: str, attrs: dict):
         raise
 
 
-def _times_block(theta, omega, chain, t_max, dt, link, torque):
+def _times_block(theta: npt.NDArray[np.float64], omega: npt.NDArray[np.float64], chain: Chain, t_max: float,
+                 dt: float, link: Optional[Integer], torque: Optional[TorqueLike]) -> npt.NDArray[np.float64]:
     # One task: a contiguous block of initial states, shape (rows, ..., N) -> (rows, ...).
     return flip_times(chain, theta, omega, t_max=t_max, dt=dt, link=link, torque=torque)
 
 
-def sweep(chain: Chain, theta0, omega0=None, t_max=10.0, dt=0.01, link=None, torque=None, chunks=None,
-          scheduler=None, zarr=None, progress=None):
+def sweep(chain: Chain, theta0: npt.ArrayLike, omega0: Optional[npt.ArrayLike] = None, t_max: float = 10.0,
+          dt: float = 0.01, link: Optional[Integer] = None, torque: Optional[TorqueLike] = None,
+          chunks: Optional[Integer] = None, scheduler: Scheduler = None, zarr: Optional[PathLike] = None,
+          progress: Progress = None) -> Union[npt.NDArray[np.float64], ZarrArray]:
     """:func:`multipendulum.flip_times` over a large batch of initial states, on Dask.
 
     ``theta0`` (and ``omega0``, default rest) of shape (B, ..., N) is split along its first axis
@@ -264,24 +286,29 @@ def sweep(chain: Chain, theta0, omega0=None, t_max=10.0, dt=0.01, link=None, tor
     with _fresh_store(path, "multipendulum.sweep", attrs), _scheduler(scheduler) as how, \
             reporter(progress, "sweep") as report:
         _compute(dask, how, report, da.to_zarr(times, path, component="times", compute=False))
-    return _zarr.open_group(path, mode="r")["times"]
+    return cast("ZarrArray", _zarr.open_group(path, mode="r")["times"])
 
 
 # ----------------------------------------------------------------------------------------------
 # Flip-time maps: the initial grid is built inside each task, never as a whole
 
 
-def _map_times_block(yb, xb, chain, vary, th_base, om_base, t_max, dt, link, torque):
+def _map_times_block(yb: npt.NDArray[np.float64], xb: npt.NDArray[np.float64], chain: Chain,
+                     vary: Tuple[str, int, str, int], th_base: npt.NDArray[np.float64],
+                     om_base: npt.NDArray[np.float64], t_max: float, dt: float, link: Optional[Integer],
+                     torque: Optional[TorqueLike]) -> npt.NDArray[np.float64]:
     theta0, omega0 = _grid(yb, xb, vary, th_base, om_base)
     return flip_times(chain, theta0, omega0, t_max=t_max, dt=dt, link=link, torque=torque)
 
 
-def _map_allowed_block(yb, xb, chain, vary, th_base, om_base, threshold):
+def _map_allowed_block(yb: npt.NDArray[np.float64], xb: npt.NDArray[np.float64], chain: Chain,
+                       vary: Tuple[str, int, str, int], th_base: npt.NDArray[np.float64],
+                       om_base: npt.NDArray[np.float64], threshold: float) -> npt.NDArray[np.bool_]:
     theta0, omega0 = _grid(yb, xb, vary, th_base, om_base)
     return np.asarray(chain.energy(theta0, omega0) >= threshold)
 
 
-def _chunk_shape(chunks, ny, nx) -> Tuple[int, int]:
+def _chunk_shape(chunks: Union[None, Integer, Tuple[Integer, Integer]], ny: int, nx: int) -> Tuple[int, int]:
     if chunks is None:
         cols = nx
         rows = max(1, DEFAULT_CHUNK_SIZE // max(1, nx))
@@ -289,15 +316,18 @@ def _chunk_shape(chunks, ny, nx) -> Tuple[int, int]:
     if isinstance(chunks, (int, np.integer)) and not isinstance(chunks, bool):
         return _positive_int(chunks, "chunks"), nx
     try:
-        rows, cols = chunks
+        rows, cols = chunks  # type: ignore[misc,assignment]  # (a bool fails here, as an InputError)
     except (TypeError, ValueError):
         raise InputError(f"chunks must be rows or (rows, columns), got {chunks!r}") from None
     return _positive_int(rows, "chunks[0]"), _positive_int(cols, "chunks[1]")
 
 
-def sweep_flip_map(chain: Chain, x, y, t_max=10.0, dt=0.01, vary=("theta", 0, "theta", 1), base_theta=None,
-                   base_omega=None, link=None, torque=None, chunks=None, scheduler=None, zarr=None,
-                   progress=None) -> FlipMap:
+def sweep_flip_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_max: float = 10.0, dt: float = 0.01,
+                   vary: Vary = ("theta", 0, "theta", 1), base_theta: Optional[npt.ArrayLike] = None,
+                   base_omega: Optional[npt.ArrayLike] = None, link: Optional[Integer] = None,
+                   torque: Optional[TorqueLike] = None, chunks: Union[None, Integer, Tuple[Integer, Integer]] = None,
+                   scheduler: Scheduler = None, zarr: Optional[PathLike] = None,
+                   progress: Progress = None) -> FlipMap:
     """:func:`multipendulum.flip_map` on Dask, for grids too large for one process.
 
     Same arguments and the same result (bit for bit) as ``flip_map``; in addition ``chunks``,
@@ -363,7 +393,7 @@ def sweep_flip_map(chain: Chain, x, y, t_max=10.0, dt=0.01, vary=("theta", 0, "t
     return open_flip_map(path)
 
 
-def open_flip_map(path: Union[str, "os.PathLike[str]"]) -> FlipMap:
+def open_flip_map(path: PathLike) -> FlipMap:
     """A flip-time map written by :func:`sweep_flip_map` (or ``multipendulum fractal --zarr``):
     ``x``, ``y`` read into memory; ``times`` and ``allowed`` left on disk as Zarr arrays."""
     try:
@@ -377,5 +407,7 @@ def open_flip_map(path: Union[str, "os.PathLike[str]"]) -> FlipMap:
         raise InputError(f"{path}: not a Zarr store ({exc})") from exc
     if group.attrs.get("kind") != "multipendulum.flip_map":
         raise InputError(f"{path}: not a flip-time map written by multipendulum")
-    return FlipMap(np.asarray(group["x"][:]), np.asarray(group["y"][:]), group["times"], group["allowed"],
-                   float(group.attrs["t_max"]), float(group.attrs["threshold"]))
+    # The store's members are arrays and its attributes numbers, as sweep_flip_map wrote them.
+    return FlipMap(np.asarray(cast("ZarrArray", group["x"])[:]), np.asarray(cast("ZarrArray", group["y"])[:]),
+                   cast("ZarrArray", group["times"]), cast("ZarrArray", group["allowed"]),
+                   float(cast(float, group.attrs["t_max"])), float(cast(float, group.attrs["threshold"])))
