@@ -167,3 +167,114 @@ def test_npz_metadata_is_plain_json(tmp_path, run):
         assert set(ARRAYS) <= set(data.files)
         assert data["positions"].shape == (len(sol.t), 3, 2)
     assert meta["format"] == "multipendulum-results" and meta["format_version"] == 1
+
+
+# ---------------------------------------------------------------------------------------------
+# Damaged files: every kind is an InputError naming the file and the problem
+
+
+def _damaged_files(tmp_path, good_npz, good_csv):
+    """(name, bytes or writer, fragment of the message) for each kind of damage."""
+    data = good_npz.read_bytes()
+    text = good_csv.read_text()
+    corrupt = bytearray(data)
+    corrupt[len(corrupt) // 3: len(corrupt) // 3 + 64] = b"\0" * 64  # inside a compressed member
+    lines = text.splitlines(keepends=True)
+    return [
+        ("empty.npz", b"", "the file is empty (0 bytes)"),
+        ("empty.csv", b"", "the file is empty (0 bytes)"),
+        ("head.npz", data[:10], "not a readable NPZ archive (truncated or corrupt?)"),
+        ("half.npz", data[: len(data) // 2], "not a readable NPZ archive (truncated or corrupt?)"),
+        ("tail.npz", data[:-30], "not a readable NPZ archive (truncated or corrupt?)"),
+        ("corrupt.npz", bytes(corrupt), "not a readable NPZ archive (truncated or corrupt?)"),
+        ("text.npz", b"t,theta_1\n0,1\n", "not an NPZ archive"),
+        ("binary.csv", b"\xff\xfe\x00garbage", "neither an NPZ archive nor UTF-8 text"),
+        ("cut.csv", "".join(lines[:-1]) + lines[-1][: len(lines[-1]) // 2], "(truncated?)"),
+        ("header-only.csv", "".join(lines[:3]), "no samples after the header line"),
+        ("word.csv", "".join(lines[:4]) + "x" + lines[4][1:], "line 5, column 1 (t): expected a number, got 'x"),
+    ]
+
+
+def test_damaged_results_files_are_input_errors_naming_the_file_and_the_problem(tmp_path, run):
+    scenario, sol = run
+    good_npz = save_results(sol, tmp_path / "good.npz", scenario=scenario)
+    good_csv = save_results(sol, tmp_path / "good.csv", scenario=scenario)
+    for name, content, fragment in _damaged_files(tmp_path, good_npz, good_csv):
+        path = tmp_path / name
+        path.write_bytes(content if isinstance(content, bytes) else content.encode())
+        with pytest.raises(mp.InputError) as info:
+            load_results(path)
+        message = str(info.value)
+        assert repr(str(path)) in message and fragment in message, (name, message)
+    with pytest.raises(mp.InputError, match="no such results file"):
+        load_results(tmp_path / "missing.npz")
+    with pytest.raises(mp.InputError, match="not a file"):
+        load_results(tmp_path)
+
+
+def test_results_whose_arrays_do_not_fit_together_are_refused(tmp_path, run):
+    scenario, sol = run
+    good = tmp_path / "good.npz"
+    save_results(sol, good, scenario=scenario)
+    with np.load(good) as data:
+        arrays = {k: data[k] for k in data.files}
+    cases = [
+        ("omega", arrays["omega"][:-1], "omega must have shape"),
+        ("positions", arrays["positions"][..., :1], "positions must have shape"),
+        ("theta", arrays["theta"].astype(str), "member 'theta' must hold numbers"),
+        ("t", arrays["t"][::-1].copy(), "t must be ascending"),
+        ("energy", np.where(np.arange(arrays["energy"].size) == 3, np.nan, arrays["energy"]), "energy[3] is nan"),
+        ("metadata", np.asarray("{not json"), "metadata is not valid JSON"),
+        ("metadata", np.asarray('{"format": "something-else"}'), "format 'something-else'"),
+    ]
+    for k, (member, value, fragment) in enumerate(cases):
+        path = tmp_path / f"bad{k}.npz"
+        np.savez(path, **dict(arrays, **{member: value}))
+        with pytest.raises(mp.InputError, match=None) as info:
+            load_results(path)
+        assert repr(str(path)) in str(info.value) and fragment in str(info.value), (member, str(info.value))
+
+
+@pytest.mark.parametrize("command", ["plot", "animate"])
+def test_the_cli_refuses_damaged_results_cleanly(tmp_path, capsys, run, command):
+    from multipendulum.cli import main
+
+    scenario, sol = run
+    data = save_results(sol, tmp_path / "good.npz", scenario=scenario).read_bytes()
+    for name, content in (("cut.npz", data[: len(data) // 2]), ("empty.npz", b"")):
+        path = tmp_path / name
+        path.write_bytes(content)
+        out = tmp_path / ("plots" if command == "plot" else "a.gif")
+        assert main([command, str(path), "-o", str(out)]) == 1
+        err = capsys.readouterr().err
+        assert err.startswith(f"multipendulum: error: {str(path)!r}: ") and "Traceback" not in err, err
+        assert len(err.strip().splitlines()) == 1
+        assert not out.exists()
+
+
+# ---------------------------------------------------------------------------------------------
+# A batch run is not one run: refused with a way to pick one
+
+
+def test_a_batch_solution_is_refused_by_plot_animate_and_save_results(tmp_path):
+    chain = mp.Chain([1.0, 1.0], [1.0, 1.0])
+    batch = mp.simulate(chain, np.full((3, 2), 0.5), np.zeros((3, 2)), 0.5, t_eval=np.linspace(0, 0.5, 11))
+    assert batch.theta.shape == (3, 11, 2)
+    calls = {
+        "mp.plot": lambda: mp.plot(batch, tmp_path / "plots"),
+        "mp.animate": lambda: mp.animate(batch, tmp_path / "a.gif"),
+        "save_results": lambda: save_results(batch, tmp_path / "r.npz"),
+    }
+    for what, call in calls.items():
+        with pytest.raises(mp.InputError) as info:
+            call()
+        message = str(info.value)
+        assert message.startswith(f"{what} takes one run, but this Solution is a batch of 3 runs "
+                                  "(theta shape (3, 11, 2))"), message
+        assert "mp.simulate(chain, theta0[b], omega0[b], ...)" in message
+    assert os.listdir(tmp_path) == []
+    # and the advice holds: the single run is the batch's row, bit for bit
+    single = mp.simulate(chain, [0.5, 0.5], [0, 0], 0.5, t_eval=np.linspace(0, 0.5, 11))
+    np.testing.assert_array_equal(single.theta, batch.theta[1])
+    with pytest.raises(mp.InputError, match="takes a multipendulum Solution or loaded Results, got dict"):
+        mp.plot({"t": [0.0]})

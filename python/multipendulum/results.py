@@ -29,7 +29,8 @@ import numpy as np
 import multipendulum as _mp
 from multipendulum import InputError
 
-__all__ = ["Results", "save_results", "load_results", "atomic_path", "series", "scenario_from_metadata", "FORMATS"]
+__all__ = ["Results", "save_results", "load_results", "atomic_path", "series", "check_single", "scenario_from_metadata",
+           "FORMATS"]
 
 PathLike = Union[str, "os.PathLike[str]"]
 FORMATS = ("npz", "csv")
@@ -116,50 +117,7 @@ def scenario_from_metadata(info: Dict[str, Any]):
 # Atomic writes
 
 
-@contextlib.contextmanager
-def atomic_path(path: PathLike) -> Iterator[Path]:
-    """Yield a temporary path beside ``path`` (same suffix, so writers that look at it still
-    work); when the block succeeds, fsync it and rename it over ``path``; otherwise delete it."""
-    path = Path(path)
-    directory = path.parent if str(path.parent) else Path(".")
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{path.name}.", suffix=f".tmp{path.suffix}")
-    os.close(fd)
-    tmp_path = Path(tmp)
-    try:
-        yield tmp_path
-        os.chmod(tmp_path, 0o666 & ~_umask())  # mkstemp makes it private; give it a normal file's mode
-        _fsync_file(tmp_path)
-        os.replace(tmp_path, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            tmp_path.unlink()
-        raise
-    _fsync_dir(directory)
-
-
-def _umask() -> int:
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
-
-
-def _fsync_file(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def _fsync_dir(directory: Path) -> None:
-    if os.name != "posix":
-        return
-    with contextlib.suppress(OSError):
-        fd = os.open(directory, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
+from ._files import atomic_path  # noqa: E402  (the one atomic writer, re-exported here)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -192,8 +150,26 @@ def _plain(value: Any) -> Any:
         return str(value)
 
 
+def check_single(sol: Any, what: str) -> None:
+    """Refuse anything but one run: a :class:`~multipendulum.Solution` of one trajectory or
+    loaded :class:`Results`. A batch run (theta of shape (B, T, N)) is refused saying how to
+    get one of its trajectories."""
+    theta = getattr(sol, "theta", None)
+    if theta is None or not hasattr(sol, "t"):
+        raise InputError(f"{what} takes a multipendulum Solution or loaded Results, got {type(sol).__name__}")
+    shape = np.shape(theta)
+    if len(shape) == 3:
+        raise InputError(
+            f"{what} takes one run, but this Solution is a batch of {shape[0]} runs (theta shape {shape}); "
+            f"pick one trajectory b by simulating it alone, mp.simulate(chain, theta0[b], omega0[b], ...), "
+            "which gives the batch's row b bit for bit")
+    if len(shape) != 2:
+        raise InputError(f"{what} takes one run with theta of shape (T, N), got shape {shape}")
+
+
 def _collect(sol: Any) -> Dict[str, np.ndarray]:
     """The arrays of a solution or of loaded results, as float64 C-contiguous arrays."""
+    check_single(sol, "save_results")
     arrays = {}
     for name in _SERIES:
         arrays[name] = np.ascontiguousarray(np.asarray(getattr(sol, name), dtype=np.float64))
@@ -287,9 +263,11 @@ def _csv_text(arrays: Dict[str, np.ndarray], meta: Dict[str, Any]) -> str:
     return buf.getvalue()
 
 
-def series(sol: Any) -> SimpleNamespace:
+def series(sol: Any, what: str = "plotting") -> SimpleNamespace:
     """What plots and animations draw, from a solution or loaded results: the time series, the
-    chain's parameters, a chain object when one can be had, and a short title."""
+    chain's parameters, a chain object when one can be had, and a short title. ``what`` names
+    the caller when a batch run (or anything but one run) is refused."""
+    check_single(sol, what)
     is_results = isinstance(sol, Results)
     params = sol if is_results else sol.chain
     view = SimpleNamespace(
@@ -325,47 +303,141 @@ def series(sol: Any) -> SimpleNamespace:
 # Loading
 
 
+def _damaged(path: Path, problem: str) -> InputError:
+    return InputError(f"{str(path)!r}: {problem}")
+
+
 def load_results(path: PathLike) -> Results:
-    """Read a results file written by :func:`save_results` (NPZ or CSV, told apart by content)."""
+    """Read a results file written by :func:`save_results` (NPZ or CSV, told apart by content).
+
+    Raises :class:`~multipendulum.InputError` naming the file and the problem for anything that
+    is not a complete results file: no such file, empty, truncated or corrupt (a damaged zip
+    member, a bad CRC), not a results file at all, or arrays whose shapes or values do not fit
+    together. Nothing else escapes (no ``zipfile.BadZipFile`` or ``zlib.error``)."""
     path = Path(path)
-    with open(path, "rb") as f:
-        head = f.read(4)
+    if not path.exists():
+        raise _damaged(path, "no such results file")
+    if not path.is_file():
+        raise _damaged(path, "not a file (a results file is an .npz or .csv file)")
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4)
+    except OSError as exc:
+        raise _damaged(path, f"cannot be read: {exc.strerror or exc}") from None
+    if not head:
+        raise _damaged(path, "the file is empty (0 bytes): not a results file (was its run interrupted?)")
     if head.startswith(b"PK"):
         return _load_npz(path)
+    if path.suffix.lower() == ".npz":
+        raise _damaged(path, "not an NPZ archive: it does not begin like one (truncated or corrupt, or "
+                             "another kind of file named .npz)")
     return _load_csv(path)
 
 
 def _load_npz(path: Path) -> Results:
-    with np.load(path, allow_pickle=False) as data:
-        missing = [k for k in ("metadata",) + _SERIES + _CHAIN_ARRAYS + ("g",) if k not in data.files]
-        if missing:
-            raise InputError(f"{str(path)!r} is not a multipendulum results file: missing {', '.join(missing)}")
-        arrays = {k: data[k] for k in _SERIES + _CHAIN_ARRAYS + ("g",)}
-        metadata = json.loads(str(data["metadata"][()]))
-    return Results(arrays, metadata, path)
+    members = ("metadata",) + _SERIES + _CHAIN_ARRAYS + ("g",)
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            missing = [k for k in members if k not in data.files]
+            if missing:
+                raise _damaged(path, f"not a multipendulum results file: missing {', '.join(missing)}")
+            arrays = {k: np.asarray(data[k]) for k in _SERIES + _CHAIN_ARRAYS + ("g",)}
+            text = data["metadata"][()]
+    except InputError:
+        raise
+    except Exception as exc:  # zipfile, zlib, EOF, CRC, .npy header errors: the file is damaged
+        raise _damaged(path, f"not a readable NPZ archive (truncated or corrupt?): "
+                             f"{type(exc).__name__}: {exc}") from None
+    metadata = _parse_metadata(path, str(text))
+    return Results(_checked(path, arrays), metadata, path)
+
+
+def _parse_metadata(path: Path, text: str) -> Dict[str, Any]:
+    try:
+        metadata = json.loads(text)
+    except ValueError as exc:
+        raise _damaged(path, f"its metadata is not valid JSON ({exc})") from None
+    if not isinstance(metadata, dict):
+        raise _damaged(path, f"its metadata must be a JSON object, got {type(metadata).__name__}")
+    fmt = metadata.get("format", _FORMAT_NAME)
+    if fmt != _FORMAT_NAME:
+        raise _damaged(path, f"not a multipendulum results file (format {fmt!r})")
+    return metadata
+
+
+def _checked(path: Path, arrays: Dict[str, Any]) -> Dict[str, np.ndarray]:
+    """The arrays as float64, refused unless their shapes fit one run of N links and T samples
+    and every value is finite (what plots, animations and reruns rely on)."""
+    out: Dict[str, np.ndarray] = {}
+    for name, value in arrays.items():
+        a = np.asarray(value)
+        if a.dtype.kind not in "fiu" or a.dtype.kind == "b":
+            raise _damaged(path, f"member {name!r} must hold numbers, got dtype {a.dtype}")
+        out[name] = np.asarray(a, dtype=np.float64, order="C")  # (ascontiguousarray makes g 1-d)
+    t, theta = out["t"], out["theta"]
+    if theta.ndim != 2 or theta.shape[0] < 1 or theta.shape[1] < 1:
+        raise _damaged(path, f"theta must have shape (T, N) with T, N >= 1, got {theta.shape}")
+    t_count, n = theta.shape
+    expected = {"t": (t_count,), "omega": (t_count, n), "p": (t_count, n), "energy": (t_count,),
+                "work": (t_count,), "energy_error": (t_count,), "positions": (t_count, n, 2),
+                "lengths": (n,), "masses": (n,), "com": (n,), "inertia": (n,), "g": ()}
+    for name, shape in expected.items():
+        if out[name].shape != shape:
+            raise _damaged(path, f"{name} must have shape {shape} to fit theta's {theta.shape} "
+                                 f"(T = {t_count} samples, N = {n} links), got {out[name].shape}")
+    for name, a in out.items():
+        bad = ~np.isfinite(a)
+        if bad.any():
+            index = tuple(int(i) for i in np.argwhere(bad)[0])
+            where = f"[{', '.join(map(str, index))}]" if index else ""
+            raise _damaged(path, f"{name}{where} is {float(a[index])!r}: a results file holds finite numbers only")
+    if t_count > 1 and not np.all(np.diff(t) >= 0):
+        i = int(np.argmax(np.diff(t) < 0)) + 1
+        raise _damaged(path, f"t must be ascending, got t[{i}] = {float(t[i])!r} after t[{i - 1}] = "
+                             f"{float(t[i - 1])!r}")
+    return out
 
 
 def _load_csv(path: Path) -> Results:
-    text = path.read_text(encoding="utf-8")
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except OSError as exc:
+        raise _damaged(path, f"cannot be read: {exc.strerror or exc}") from None
+    except UnicodeDecodeError as exc:
+        raise _damaged(path, f"neither an NPZ archive nor UTF-8 text (a CSV results file): {exc}") from None
     lines = text.splitlines()
     metadata = None
     header_index = None
     for i, line in enumerate(lines):
         if line.startswith("# metadata:"):
-            metadata = json.loads(line[len("# metadata:"):])
+            metadata = _parse_metadata(path, line[len("# metadata:"):])
         elif not line.startswith("#"):
             header_index = i
             break
     if metadata is None or header_index is None or "chain" not in metadata:
-        raise InputError(f"{str(path)!r} is not a multipendulum results file (no '# metadata:' line)")
+        raise _damaged(path, "not a multipendulum results file (no '# metadata:' line with the chain, "
+                             "then a header line)")
     chain = metadata.pop("chain")
-    n = len(chain["lengths"])
+    if not isinstance(chain, dict) or any(k not in chain for k in _CHAIN_ARRAYS + ("g",)):
+        raise _damaged(path, f"the metadata's chain must give {', '.join(_CHAIN_ARRAYS + ('g',))}")
+    try:
+        n = len(chain["lengths"])
+    except TypeError:
+        raise _damaged(path, "the metadata's chain lengths must be a list") from None
     columns = lines[header_index].split(",")
     if columns != _csv_columns(n):
-        raise InputError(f"{str(path)!r}: unexpected CSV columns for N = {n}")
-    table = np.loadtxt(io.StringIO("\n".join(lines[header_index + 1:])), delimiter=",", ndmin=2)
+        raise _damaged(path, f"unexpected CSV columns for N = {n} links: expected "
+                             f"{','.join(_csv_columns(n)[:4])},... ({len(_csv_columns(n))} columns), "
+                             f"got {len(columns)} starting {','.join(columns[:4])!r}")
+    body = lines[header_index + 1:]
+    if not any(line.strip() for line in body):
+        raise _damaged(path, "no samples after the header line (truncated?)")
+    try:
+        table = np.loadtxt(io.StringIO("\n".join(body)), delimiter=",", ndmin=2, dtype=np.float64)
+    except ValueError:
+        raise _csv_problem(path, body, header_index + 2, columns) from None
     if table.shape[1] != len(columns):
-        raise InputError(f"{str(path)!r}: expected {len(columns)} columns, got {table.shape[1]}")
+        raise _csv_problem(path, body, header_index + 2, columns)
     t_count = table.shape[0]
     cuts = np.cumsum([1, n, n, n, 1, 1, 1])
     parts = np.split(table, cuts, axis=1)
@@ -374,8 +446,33 @@ def _load_csv(path: Path) -> Results:
         "energy": parts[4][:, 0], "work": parts[5][:, 0], "energy_error": parts[6][:, 0],
         "positions": parts[7].reshape(t_count, n, 2),
     }
-    arrays = {k: np.ascontiguousarray(v, dtype=np.float64) for k, v in arrays.items()}
-    arrays["g"] = np.asarray(chain["g"], dtype=np.float64)
-    for k in _CHAIN_ARRAYS:
-        arrays[k] = np.asarray(chain[k], dtype=np.float64)
-    return Results(arrays, metadata, path)
+    try:
+        arrays["g"] = np.asarray(chain["g"], dtype=np.float64)
+        for k in _CHAIN_ARRAYS:
+            arrays[k] = np.asarray(chain[k], dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise _damaged(path, f"the metadata's chain is not numbers: {exc}") from None
+    return Results(_checked(path, arrays), metadata, path)
+
+
+def _csv_problem(path: Path, body, first_lineno: int, columns) -> InputError:
+    """The first line of a CSV body that does not hold one number per column, named."""
+    for lineno, line in enumerate(body, start=first_lineno):
+        if not line.strip():
+            continue
+        cells = line.split(",")
+        if len(cells) != len(columns):
+            return _damaged(path, f"line {lineno}: expected {len(columns)} values, got {len(cells)} (truncated?)")
+        for j, cell in enumerate(cells):
+            if not _is_float(cell):
+                return _damaged(path, f"line {lineno}, column {j + 1} ({columns[j]}): expected a number, "
+                                      f"got {cell[:40]!r}")
+    return _damaged(path, "the CSV samples cannot be read as numbers")
+
+
+def _is_float(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
