@@ -125,7 +125,9 @@ def test_a_two_process_distributed_cluster_gives_the_single_process_map_exactly(
                                        dashboard_address=None, worker_dashboard_address=None)
     try:
         address = cluster.scheduler_address
-        fm = mp.sweep_flip_map(DOUBLE, x, x, t_max=3.0, chunks=8, scheduler=address)
+        seen = []  # progress on a cluster: the chunks counted as their results arrive
+        fm = mp.sweep_flip_map(DOUBLE, x, x, t_max=3.0, chunks=8, scheduler=address, progress=seen.append)
+        assert len(seen) >= 8 and seen == sorted(seen) and seen[-1] == 1.0
         np.testing.assert_array_equal(fm.times, ref.times)
         np.testing.assert_array_equal(fm.allowed, ref.allowed)
         # Both worker processes did some of the work.
