@@ -71,17 +71,27 @@ impl Watch {
 pub fn supervise<R: Send>(watch: &Watch, every: Duration, work: impl FnOnce() -> R + Send, mut poll: impl FnMut(f64) -> bool) -> R {
     #[cfg(feature = "parallel")]
     {
+        use std::sync::mpsc::{channel, RecvTimeoutError};
         std::thread::scope(|s| {
-            let handle = s.spawn(work);
-            while !handle.is_finished() {
-                std::thread::park_timeout(every);
-                if !watch.stopped() && !handle.is_finished() && poll(watch.fraction()) {
-                    watch.stop();
+            let (done, result) = channel();
+            let handle = s.spawn(move || {
+                // The receiver is gone only if the caller panicked; nothing to tell then.
+                let _ = done.send(work());
+            });
+            loop {
+                match result.recv_timeout(every) {
+                    Ok(r) => return r,
+                    Err(RecvTimeoutError::Timeout) => {
+                        if !watch.stopped() && poll(watch.fraction()) {
+                            watch.stop();
+                        }
+                    }
+                    // The work panicked: pass its panic on.
+                    Err(RecvTimeoutError::Disconnected) => match handle.join() {
+                        Err(panic) => std::panic::resume_unwind(panic),
+                        Ok(()) => unreachable!("the work ended without a result or a panic"),
+                    },
                 }
-            }
-            match handle.join() {
-                Ok(r) => r,
-                Err(panic) => std::panic::resume_unwind(panic),
             }
         })
     }
@@ -120,6 +130,16 @@ mod tests {
         assert_eq!(r, Err(Error::Interrupted { t: 1.5 }));
         assert!(start.elapsed() < Duration::from_secs(2), "took {:?}", start.elapsed());
         assert_eq!(polls, 3);
+    }
+
+    #[test]
+    fn short_work_returns_at_once_not_after_a_poll_interval() {
+        let watch = Watch::new();
+        let start = std::time::Instant::now();
+        for _ in 0..20 {
+            assert_eq!(supervise(&watch, Duration::from_secs(1), || 7, |_| false), 7);
+        }
+        assert!(start.elapsed() < Duration::from_millis(500), "took {:?}", start.elapsed());
     }
 
     #[test]

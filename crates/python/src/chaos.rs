@@ -35,7 +35,7 @@ fn lyapunov<'py>(
     let c = &chain.inner;
     let torque = builtin_only(py, c.n(), torque.as_deref(), "lyapunov")?;
     let watch = Watch::new();
-    let out = interruptible(py, &watch, progress.as_ref(), || {
+    let out = interruptible(py, &watch, progress.as_ref(), false, || {
         core::chaos::lyapunov(c, &theta0, &omega0, t_end, dt, k, renorm_every, torque, &watch)
     })?
     .map_err(|e| to_py(py, e))?;
@@ -61,7 +61,7 @@ fn first_flips<'py>(
     let torque = builtin_only(py, c.n(), torque.as_deref(), "flip maps")?;
     let (theta0, omega0) = (slice("theta0", &theta0)?, slice("omega0", &omega0)?);
     let watch = Watch::units((theta0.len() / c.n().max(1)) as u64);
-    let out = interruptible(py, &watch, progress.as_ref(), || {
+    let out = interruptible(py, &watch, progress.as_ref(), false, || {
         core::chaos::first_flips(c, theta0, omega0, t_max, dt, link, &torque, &watch)
     })?
     .map_err(|e| to_py(py, e))?;

@@ -250,14 +250,15 @@ fn simulate<'py>(
         torque_error(py, e, &slot)
     };
     let progress = progress.as_ref();
+    let short = settings.is_short(t_end, b);
     let result = match src {
         AnyTorque::Builtin(s) if b > 1 => {
             let watch = Watch::units(b as u64);
-            interruptible(py, &watch, progress, || core::simulate_batch(c, theta0, omega0, t_end, &settings, &s, &watch))?.map(Trajectories)
+            interruptible(py, &watch, progress, short, || core::simulate_batch(c, theta0, omega0, t_end, &settings, &s, &watch))?.map(Trajectories)
         }
         AnyTorque::JointBuiltin(s) if b > 1 => {
             let watch = Watch::units(b as u64);
-            interruptible(py, &watch, progress, || core::simulate_batch(c, theta0, omega0, t_end, &settings, &s, &watch))?.map(Trajectories)
+            interruptible(py, &watch, progress, short, || core::simulate_batch(c, theta0, omega0, t_end, &settings, &s, &watch))?.map(Trajectories)
         }
         AnyTorque::Builtin(s) => {
             let watch = Watch::new();
@@ -265,7 +266,7 @@ fn simulate<'py>(
                 watch.set_fraction(t / t_end);
                 watch.check(t)
             };
-            interruptible(py, &watch, progress, || {
+            interruptible(py, &watch, progress, short, || {
                 let mut cps = checkpoint.as_ref().map(|_| core::Checkpoints { every_steps, due: &mut due, save: &mut save });
                 core::simulate_from(c, start, t_end, &settings, s, &mut monitor, cps.as_mut())
             })?
@@ -277,7 +278,7 @@ fn simulate<'py>(
                 watch.set_fraction(t / t_end);
                 watch.check(t)
             };
-            interruptible(py, &watch, progress, || {
+            interruptible(py, &watch, progress, short, || {
                 let mut cps = checkpoint.as_ref().map(|_| core::Checkpoints { every_steps, due: &mut due, save: &mut save });
                 core::simulate_from(c, start, t_end, &settings, s, &mut monitor, cps.as_mut())
             })?

@@ -118,6 +118,18 @@ impl Settings {
         }
     }
 
+    /// Whether `trajectories` runs to `t_end` are surely short (a fixed-step run of a few
+    /// thousand steps in all): short enough to run where they are called, without a watcher
+    /// thread for Ctrl-C (which costs tens of microseconds to start).
+    pub fn is_short(&self, t_end: f64, trajectories: usize) -> bool {
+        match self.dt {
+            Some(dt) if !self.method.adaptive() || !self.adaptive => {
+                (t_end / dt).ceil() * trajectories as f64 <= SHORT_STEPS && self.events.is_empty()
+            }
+            _ => false,
+        }
+    }
+
     /// Check the settings for a run to `t_end`; returns the number of output rows.
     pub fn validate(&self, t_end: f64) -> Result<usize> {
         if !(t_end.is_finite() && t_end > 0.0) {
@@ -162,6 +174,9 @@ impl Settings {
     }
 }
 
+/// Steps (all trajectories together) below which a fixed-step run counts as short.
+const SHORT_STEPS: f64 = 4096.0;
+
 /// Refuse, before allocating, an output of `rows` rows (all trajectories) that would not fit.
 fn check_output_size(rows: f64, n: usize) -> Result<()> {
     crate::memory::check(
@@ -190,6 +205,34 @@ fn check_fixed_steps(settings: &Settings, t_end: f64) -> Result<()> {
         }
         _ => Ok(()),
     }
+}
+
+/// An adaptive run's length is known only as it goes: at its pace so far (checked at 64, 128,
+/// 256, ... steps), refuse at once a run that clearly cannot reach `t_end` within `max_steps`, or
+/// whose every-step output clearly would not fit, instead of after minutes of work. "Clearly":
+/// four times over, as the pace of the first steps can differ from the rest.
+fn check_pace(settings: &Settings, attempts: u64, t: f64, t_end: f64, every_step: bool, n: usize) -> Result<()> {
+    if !(t > 0.0) {
+        return Ok(());
+    }
+    let total = attempts as f64 * t_end / t;
+    if total > 4.0 * settings.max_steps as f64 {
+        return Err(Error::input(format!(
+            "{} needs about {total:.1e} steps to reach t_end = {t_end:e} at its pace so far ({attempts} steps \
+             to t = {t:.3e}), more than max_steps = {}; use a shorter t_end or looser rtol/atol (or raise max_steps)",
+            settings.method.name(),
+            settings.max_steps
+        )));
+    }
+    if every_step {
+        let rows = total / 4.0;
+        crate::memory::check(
+            rows * crate::memory::row_bytes(n),
+            &format!("storing every step, about {rows:.1e} output points of {n} links to t_end = {t_end:e} at the pace so far"),
+            "ask for fewer with t_eval (e.g. 10^4 points), or a shorter t_end",
+        )?;
+    }
+    Ok(())
 }
 
 /// Output rows of the raw ODE state `y`.
@@ -467,6 +510,9 @@ pub fn simulate_from<T: TorqueSource>(
             }
         }
         let steps = run.state().steps;
+        if settings.method.adaptive() && steps.is_power_of_two() && steps >= MONITOR_EVERY {
+            check_pace(settings, steps + run.state().rejected, t1, t_end, t_eval.is_none(), n)?;
+        }
         after_step(steps, t1, &mut *monitor, &mut checkpoints, || Checkpoint {
             run: run.save(),
             initial: initial.clone(),
