@@ -160,3 +160,99 @@ def test_plot_rejects_unknown_kind(tmp_path, sol):
     with pytest.raises(mp.InputError, match="unknown plot kind 'energie'"):
         mp.plot(sol, tmp_path, kinds=("energie",))
     assert os.listdir(tmp_path) == []
+
+
+# ---------------------------------------------------------------------------------------------
+# Settings that would not fit are refused before anything is drawn
+
+
+@pytest.mark.parametrize("kwargs, fragment", [
+    (dict(fps=100000), "has 2e+05 frames, more than 100000; lower fps, raise speed"),
+    (dict(speed=1e-6), "has 6e+07 frames, more than 100000"),
+    (dict(dpi=100000), "frames of 5e+05 x 5e+05 pixels (dpi = 100000, 5 inches) are larger than 8192 x 8192"),
+    (dict(fps=30000, dpi=400), "draws 2.4e+11 pixels, more than 3e+10"),
+    (dict(fps=45000), "write .mp4 (its frames are streamed, not kept)"),   # every GIF frame is kept
+    (dict(fps=float("inf")), "fps must be finite, got inf"),
+    (dict(trail=float("nan")), "trail must be finite, got nan"),
+])
+def test_animations_that_would_not_fit_are_refused_at_once(tmp_path, sol, kwargs, fragment):
+    import time
+
+    start = time.perf_counter()
+    with pytest.raises(mp.InputError) as info:
+        mp.animate(sol, tmp_path / "a.gif", **kwargs)
+    assert fragment in str(info.value), str(info.value)
+    assert time.perf_counter() - start < 2.0  # refused, not attempted
+    assert os.listdir(tmp_path) == []
+
+
+def test_the_same_frames_stream_to_mp4_within_the_limits(sol):
+    from multipendulum.animation import plan
+
+    # 90001 frames of 400 x 400: too many to keep for a GIF, but an MP4 streams them.
+    assert plan(0.0, 2.0, 45000, 1.0, 80, format=".mp4") == (90001, 400)
+    with pytest.raises(mp.InputError, match="needs [0-9.]+ GiB"):
+        plan(0.0, 2.0, 45000, 1.0, 80, format=".gif")
+
+
+def test_the_cli_refuses_animation_settings_before_it_writes_any_results(tmp_path, capsys):
+    from multipendulum.cli import main
+
+    scenario = tmp_path / "s.toml"
+    scenario.write_text("""
+[chain]
+lengths = [1.0, 1.0]
+masses = [1.0, 1.0]
+[initial]
+unit = "degrees"
+theta = [120.0, 10.0]
+[simulation]
+t_end = 10.0
+[output]
+fps = 100000
+""")
+    out = tmp_path / "out"
+    assert main(["run", str(scenario), "-o", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith(f"multipendulum: error: {scenario}: key 'output.fps': an animation of 10 s of the run at "
+                          "output.fps = 100000 and output.speed = 1 has 1e+06 frames, more than 100000; lower "
+                          "output.fps, raise output.speed"), err
+    assert "--t-end" not in err and "simulation.t_end = 10 s" in err
+    assert not out.exists()
+    # with --no-animation the same scenario runs and writes its results
+    assert main(["run", str(scenario), "-o", str(out), "--no-animation", "--no-plots", "--t-end", "2", "-q"]) == 0
+    results = out / "results.npz"
+    # `animate` takes the stored scenario's fps (here 100000) unless told otherwise
+    for options, fragment in ((["--fps", "10", "--dpi", "100000"], "lower --dpi"), ([], "lower --fps"),
+                              (["--fps", "30", "--speed", "1e-9"], "raise --speed")):
+        assert main(["animate", str(results), "-o", str(tmp_path / "a.gif")] + options) == 1
+        err = capsys.readouterr().err
+        assert fragment in err and "Traceback" not in err, err
+    assert not (tmp_path / "a.gif").exists()
+
+
+def test_long_titles_are_wrapped_inside_the_frame_and_the_plots(sol):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    import matplotlib.pyplot as plt
+
+    name = "A rather long scenario name that describes the driven triple pendulum experiment in great detail"
+    painter = _Painter(series(sol), dpi=60, size=5.0, title=name + " (dop853)", speed=1.0)
+    figures = [(painter.fig, painter.canvas.get_renderer())]
+    plots = mp.plot(sol, title=name)
+    try:
+        for fig in plots:
+            canvas = FigureCanvasAgg(fig)
+            canvas.draw()
+            figures.append((fig, canvas.get_renderer()))
+        for fig, renderer in figures:
+            box = fig.bbox
+            texts = [t for t in fig.findobj(lambda a: hasattr(a, "get_text") and hasattr(a, "get_window_extent"))
+                     if "rather long" in str(a_text := t.get_text()) or "\u2026" in a_text]
+            assert texts, "the title is missing"
+            for t in texts:
+                ext = t.get_window_extent(renderer)
+                assert ext.x0 >= box.x0 - 1 and ext.x1 <= box.x1 + 1, (t.get_text(), ext, box)
+                assert ext.y1 <= box.y1 + 1
+    finally:
+        for fig in plots:
+            plt.close(fig)

@@ -17,7 +17,7 @@ import numpy as np
 
 from .results import atomic_path, series
 
-__all__ = ["animate", "frame_times"]
+__all__ = ["animate", "frame_times", "plan", "frame_count", "MAX_FRAMES", "MAX_SIDE", "MAX_PIXEL_FRAMES"]
 
 PathLike = Union[str, "os.PathLike[str]"]
 _FORMATS = (".gif", ".mp4")
@@ -26,11 +26,93 @@ _BOB = "#1f77b4"
 _TRAIL = np.array([0.84, 0.15, 0.16])  # tab:red
 
 
+#: The most frames an animation may have: 10^5 frames is 55 minutes of playback at 30 fps and
+#: about half an hour of drawing at 400 x 400 pixels; more is a typo in fps or speed.
+MAX_FRAMES = 100_000
+#: The largest frame side in pixels (8K video); Agg stops at 2^16, video encoders sooner.
+MAX_SIDE = 8192
+#: The most pixels drawn over all frames (frames x width x height): 3e10 is about an hour of
+#: drawing on one core (20 ms per 400 x 400 frame).
+MAX_PIXEL_FRAMES = 3e10
+#: Bytes per pixel while a frame is drawn: Agg's RGBA canvas, the blitting background (RGBA),
+#: the RGB frame and the copy the writer takes.
+_DRAW_BYTES = 4 + 4 + 3 + 3
+#: Python's own names for the settings, used in messages unless a caller (the command line, a
+#: scenario file) names them its way.
+_NAMES = {"fps": "fps", "speed": "speed", "dpi": "dpi", "size": "size", "trail": "trail",
+          "duration": "a shorter run", "format": "write .mp4 (its frames are streamed, not kept)"}
+
+
+def frame_count(t0: float, t1: float, fps: float, speed: float) -> float:
+    """How many frames :func:`frame_times` gives, as a float (it may be astronomically large)."""
+    return math.floor((t1 - t0) / (speed / fps) + 1e-9) + 1.0
+
+
 def frame_times(t0: float, t1: float, fps: float, speed: float) -> np.ndarray:
     """Simulation time of each frame: real-time playback at ``speed`` = 1, frames 1/fps apart."""
     step = speed / fps
-    count = int(math.floor((t1 - t0) / step + 1e-9)) + 1
+    count = int(frame_count(t0, t1, fps, speed))
     return t0 + step * np.arange(count)
+
+
+def _side(size: float, dpi: float) -> float:
+    """The frame's side in pixels: ``size`` inches at ``dpi``, a multiple of 16, at least 64."""
+    return max(64.0, 16.0 * round(size * dpi / 16.0))
+
+
+def plan(t0: float, t1: float, fps: float, speed: float, dpi: float, size: float = 5.0, trail: float = 0.0,
+         n: int = 1, format: str = ".gif", names: Optional[dict] = None):
+    """Check an animation's settings and its cost before anything is drawn; returns
+    ``(frames, side)``, the frame count and the frame's side in pixels.
+
+    Refused with :class:`~multipendulum.InputError` (and advice): a setting that is not a finite
+    number > 0 (``trail`` >= 0); more than :data:`MAX_FRAMES` frames; a side beyond
+    :data:`MAX_SIDE` pixels; more than :data:`MAX_PIXEL_FRAMES` pixels drawn in all; memory the
+    core's limit (``_core.check_memory``) refuses: the drawing buffers, the frames' joint
+    positions and, for a GIF, every frame, which the GIF writer keeps until the end.
+    ``names`` maps ``fps``, ``speed``, ``dpi``, ``size``, ``trail``, ``duration`` (how to make the
+    run shorter) and ``format`` (how to stream the frames) to the caller's own words for them,
+    e.g. ``{"fps": "--fps"}`` on the command line or ``"output.fps"`` in a scenario file."""
+    from multipendulum import InputError, _core
+
+    say = dict(_NAMES, **(names or {}))
+    for key, value, low in (("fps", fps, 0.0), ("speed", speed, 0.0), ("dpi", dpi, 0.0), ("size", size, 0.0)):
+        if not (isinstance(value, numbers.Real) and not isinstance(value, bool)):
+            raise InputError(f"{say[key]} must be a number > 0, got {value!r}")
+        if not math.isfinite(value):
+            raise InputError(f"{say[key]} must be finite, got {value!r}")
+        if not value > low:
+            raise InputError(f"{say[key]} must be > 0, got {value!r}")
+    if not (isinstance(trail, numbers.Real) and not isinstance(trail, bool)):
+        raise InputError(f"{say['trail']} must be a number >= 0, got {trail!r}")
+    if not math.isfinite(trail):
+        raise InputError(f"{say['trail']} must be finite, got {trail!r}")
+    if not trail >= 0:
+        raise InputError(f"{say['trail']} must be >= 0, got {trail!r}")
+    duration = max(0.0, float(t1) - float(t0))
+    frames = frame_count(float(t0), float(t1), float(fps), float(speed))
+    settings = f"{duration:g} s of the run at {say['fps']} = {fps:g} and {say['speed']} = {speed:g}"
+    if not frames <= MAX_FRAMES:
+        raise InputError(f"an animation of {settings} has {frames:.4g} frames, more than {MAX_FRAMES}; "
+                         f"lower {say['fps']}, raise {say['speed']} (simulated seconds per second of playback), "
+                         f"or animate {say['duration']}")
+    side = _side(float(size), float(dpi))
+    if side > MAX_SIDE:
+        raise InputError(f"frames of {side:.4g} x {side:.4g} pixels ({say['dpi']} = {dpi:g}, {size:g} inches) are "
+                         f"larger than {MAX_SIDE} x {MAX_SIDE}; lower {say['dpi']} (80 gives 400 x 400)")
+    pixels = side * side
+    what = f"an animation of {int(frames)} frames of {int(side)} x {int(side)} pixels"
+    if frames * pixels > MAX_PIXEL_FRAMES:
+        raise InputError(f"{what} draws {frames * pixels:.3g} pixels, more than {MAX_PIXEL_FRAMES:.0e} (about an "
+                         f"hour of drawing); lower {say['dpi']} or {say['fps']}, raise {say['speed']}, "
+                         f"or animate {say['duration']}")
+    kept = frames * pixels if format.lower() == ".gif" else 0.0
+    need = _DRAW_BYTES * pixels + frames * n * 3 * 8.0 + kept
+    advice = f"lower {say['dpi']} or {say['fps']}, raise {say['speed']}, or animate {say['duration']}"
+    if kept:
+        advice += f"; or {say['format']}"
+    _core.check_memory(float(need), what, advice)
+    return int(frames), int(side)
 
 
 def animate(
@@ -42,7 +124,8 @@ def animate(
     dpi: float = 80,
     size: float = 5.0,
     title: Optional[str] = None,
-    progress: Optional[Callable[[float], Any]] = None,
+    progress: Any = None,
+    names: Optional[dict] = None,
 ) -> Path:
     """Write an animation of a solution (or loaded results) to ``path`` (``.gif`` or ``.mp4``).
 
@@ -50,32 +133,37 @@ def animate(
     (1 = real time); ``trail`` seconds of simulated time the last link's tip leaves behind
     (0 for none); ``size`` the frame's side in inches at ``dpi`` dots per inch (rounded to a
     multiple of 16 pixels, which video encoders like). The file is written atomically.
-    ``progress`` (optional) is called with the fraction of frames drawn.
-    Returns the path.
+    ``progress``: True for a bar on stderr, or a callable given the fraction of frames drawn
+    (see :mod:`multipendulum._progress`). Returns the path.
+
+    Settings are checked against the animation's cost before anything is drawn (see
+    :func:`plan`): at most :data:`MAX_FRAMES` frames, :data:`MAX_SIDE` pixels a side,
+    :data:`MAX_PIXEL_FRAMES` pixels in all, and the memory the core allows. ``names`` (for
+    callers such as the command line) says how the messages should name the settings.
+    A batch :class:`~multipendulum.Solution` is refused: animate one trajectory.
     """
     from multipendulum import InputError
+
+    from ._progress import reporter
 
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in _FORMATS:
         raise InputError(f"animation file must end in .gif or .mp4, got {str(path)!r}")
-    for name, value, low in (("fps", fps, 0.0), ("speed", speed, 0.0), ("dpi", dpi, 0.0), ("size", size, 0.0)):
-        if not (isinstance(value, numbers.Real) and math.isfinite(value) and value > low):
-            raise InputError(f"{name} must be > 0, got {value!r}")
-    if not (isinstance(trail, numbers.Real) and math.isfinite(trail) and trail >= 0):
-        raise InputError(f"trail must be >= 0, got {trail!r}")
-
-    view = series(sol)
+    view = series(sol, "mp.animate")
+    plan(float(view.t[0]), float(view.t[-1]), fps, speed, dpi, size, trail, n=view.theta.shape[1],
+         format=suffix, names=names)  # refuses what would not fit before anything is drawn
     times = frame_times(float(view.t[0]), float(view.t[-1]), fps, speed)
-    joints = _frame_positions(view, times)
-    painter = _Painter(view, dpi=dpi, size=size, title=title, speed=speed)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    frames = (painter.frame(k, times[k], joints[k], trail) for k in range(len(times)))
-    with atomic_path(path) as tmp:
-        if suffix == ".gif":
-            _write_gif(tmp, frames, len(times), fps, progress)
-        else:
-            _write_mp4(tmp, frames, len(times), fps, painter.pixels, progress)
+    with reporter(progress, "animate") as report:
+        joints = _frame_positions(view, times)
+        painter = _Painter(view, dpi=dpi, size=size, title=title, speed=speed)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        frames = (painter.frame(k, times[k], joints[k], trail) for k in range(len(times)))
+        with atomic_path(path) as tmp:
+            if suffix == ".gif":
+                _write_gif(tmp, frames, len(times), fps, report)
+            else:
+                _write_mp4(tmp, frames, len(times), fps, painter.pixels, report)
     return path
 
 
@@ -101,7 +189,7 @@ class _Painter:
         from matplotlib.figure import Figure
 
         self.view = view
-        pixels = max(64, 16 * int(round(size * dpi / 16)))
+        pixels = int(_side(size, dpi))
         self.pixels = pixels
         self.fig = Figure(figsize=(pixels / dpi, pixels / dpi), dpi=dpi)
         self.canvas = FigureCanvasAgg(self.fig)
@@ -120,7 +208,10 @@ class _Painter:
             title = view.name or f"{lengths.shape[0]}-link pendulum"
             if view.method:
                 title += f" ({view.method})"
-        self.fig.suptitle(title, fontsize=9, y=0.975)
+        from .plotting import fit_title
+
+        # Two lines fit above the axes; a longer title ends in an ellipsis rather than being clipped.
+        self.fig.suptitle(fit_title(title, 0.94 * pixels / dpi, 9.0, max_lines=2), fontsize=9, y=0.985)
         if speed != 1:
             ax.text(0.99, 0.99, f"speed x{speed:g}", transform=ax.transAxes, ha="right", va="top", fontsize=7)
 

@@ -22,7 +22,7 @@ from ._chain import Chain, as_state
 from .chaos import FlipMap
 from .errors import InputError
 
-__all__ = ["plot_flip_map", "energy_grid", "axis_label"]
+__all__ = ["plot_flip_map", "energy_grid", "axis_label", "check_picture", "MAX_SIDE"]
 
 PathLike = Union[str, "os.PathLike[str]"]
 CMAP = "viridis"
@@ -33,6 +33,27 @@ BOUND_COLOR = "#e4002b"        # the energy-bound curve: a red no viridis shade 
 LOG_DECADES = 2.0              # log colour scale from t_max / 100 to t_max
 _MAX_PIXELS = 2048             # plot at most this many samples along an axis (maps of 4096^2)
 _BOUND_SAMPLES = 600           # the energy field for the bound curve, per axis
+MAX_SIDE = 16384               # the largest picture side in pixels (Agg stops at 2^16)
+
+
+def check_picture(dpi, size: float = 6.4, names=None) -> None:
+    """Refuse a picture resolution that is not a finite number > 0 or would not fit: a side
+    beyond :data:`MAX_SIDE` pixels, or more memory than the core allows. ``names`` says how the
+    caller names ``dpi`` (the command line: ``--dpi``)."""
+    import math
+    import numbers
+
+    from . import _core
+
+    name = (names or {}).get("dpi", "dpi")
+    if isinstance(dpi, bool) or not isinstance(dpi, numbers.Real) or not math.isfinite(dpi) or not dpi > 0:
+        raise InputError(f"{name} must be a finite number > 0, got {dpi!r}")
+    width, height = size * dpi, size * 0.86 * dpi
+    if width > MAX_SIDE:
+        raise InputError(f"a picture {width:.0f} x {height:.0f} pixels ({name} = {dpi:g}) is larger than "
+                         f"{MAX_SIDE} a side; lower {name} (150 gives {size * 150:.0f} x {size * 0.86 * 150:.0f})")
+    # Agg's RGBA buffer and the PNG encoder's copy; the map itself is thinned to 2048 a side.
+    _core.check_memory(width * height * 8.0, f"a picture of {width:.0f} x {height:.0f} pixels", f"lower {name}")
 
 
 def axis_label(kind: str, link: int) -> str:
@@ -105,6 +126,7 @@ def plot_flip_map(fm: FlipMap, path: Optional[PathLike] = None, chain: Optional[
     from matplotlib.patches import Patch
     from matplotlib.lines import Line2D
 
+    check_picture(dpi, size)
     kx, ix, ky, iy = vary
     x = np.asarray(fm.x, dtype=float)
     y = np.asarray(fm.y, dtype=float)
@@ -119,9 +141,14 @@ def plot_flip_map(fm: FlipMap, path: Optional[PathLike] = None, chain: Optional[
     flipped = np.isfinite(times)
     never = ~flipped & allowed
     forbidden = ~allowed
+    from .plotting import fit_title
+
     fig = Figure(figsize=(size, size * 0.86), dpi=dpi)
-    ax = fig.add_axes((0.12, 0.18, 0.68, 0.72))
-    cax = fig.add_axes((0.83, 0.18, 0.03, 0.72))
+    # A long title takes two lines (never clipped); the axes make room for the second.
+    heading = fit_title(title or "Time of the first flip", 0.94 * size, 11.0, max_lines=2)
+    height = 0.72 - 0.05 * heading.count("\n")
+    ax = fig.add_axes((0.12, 0.18, 0.68, height))
+    cax = fig.add_axes((0.83, 0.18, 0.03, height))
     extent = (*_edges(xs), *_edges(ys))
 
     vmin = t_max * 10.0 ** -LOG_DECADES
@@ -179,7 +206,7 @@ def plot_flip_map(fm: FlipMap, path: Optional[PathLike] = None, chain: Optional[
     ]
     fig.legend(handles=handles, loc="lower center", bbox_to_anchor=(0.46, 0.0), ncol=2, fontsize=8,
                frameon=False, handlelength=1.8, columnspacing=1.4)
-    fig.suptitle(title or "Time of the first flip", fontsize=11, y=0.975)
+    fig.suptitle(heading, fontsize=11, y=0.975)
     subtitle = f"{y.size} x {x.size} initial states, {frac(flipped)} flipped by {t_max:g} s"
     fixed = _fixed_values(chain, (kx, ix, ky, iy), base_theta, base_omega)
     ax.set_title(subtitle + (f"; {fixed}" if fixed else ""), fontsize=8, color="0.3")
