@@ -188,8 +188,8 @@ def test_table_csv_problems(tmp_path):
     base = GOOD + '[torque]\nkind = "table"\nconvention = "generalized"\nfile = "u.csv"\n'
     cases = {
         "t,a,b\n0,1,2\n1,3,4\n": "line 2: expected 4 columns (t, then one torque per link), got 3",
-        "0,1,2,3\n0,1,2,3\n": "line 2: times must increase",
-        "0,1,2,3\n1,x,2,3\n": "line 2: expected numbers",
+        "0,1,2,3\n0,1,2,3\n": "u.csv line 2, column 1 (t): times must increase, got 0 after 0 on line 1",
+        "0,1,2,3\n1,x,2,3\n": "u.csv line 2, column 2 (link 1): expected a number, got 'x'",
         "0,1,2,3\n": "expected at least 2 rows",
     }
     for csv, fragment in cases.items():

@@ -36,6 +36,7 @@ import difflib
 import io
 import math
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple, Union
@@ -187,7 +188,7 @@ class Scenario:
         except ScenarioError:
             raise
         except InputError as exc:
-            raise ScenarioError(str(exc), key="chain", path=self.path) from exc
+            raise ScenarioError(compact_numbers(str(exc)), key="chain", path=self.path) from exc
 
     def build_torque(self) -> Dict[str, Any]:
         """``{"torque": ...}`` or ``{"joint_torque": ...}`` (empty without a torque)."""
@@ -198,12 +199,70 @@ class Scenario:
         except ScenarioError:
             raise
         except InputError as exc:
-            raise ScenarioError(str(exc), key="torque", path=self.path) from exc
+            raise ScenarioError(compact_numbers(str(exc)), key="torque", path=self.path) from exc
+
+    def sample_count(self) -> float:
+        """How many samples :meth:`t_eval` gives (a float: it is checked before it is made)."""
+        return max(1.0, math.ceil(self.t_end / self.sample_dt - 1e-9)) + 1.0
+
+    def _t_end_words(self) -> str:
+        if "t_end" in self.overrides:
+            return f"--t-end {_num(self.t_end)} on the command line"
+        return f"simulation.t_end = {_num(self.t_end)} s"
+
+    def check_limits(self) -> None:
+        """Refuse, before anything is allocated or run, a scenario whose run would not fit: a
+        fixed-step run longer than ``max_steps``, or more output samples than the memory the
+        core allows (``t_end / sample_dt`` rows of ``5 N + 6`` numbers). The messages name the
+        file and the keys to change. Called when a scenario is read and after :meth:`replace`."""
+        steps_limit = _max_steps()
+        if self.dt is not None and self.method in _FIXED_STEP:
+            steps = self.t_end / self.dt
+            if steps > steps_limit:
+                raise ScenarioError(
+                    f"{self.method} with dt = {_num(self.dt)} s takes {_num(steps, 4)} steps to reach "
+                    f"t_end = {_num(self.t_end)} s, more than the {_num(steps_limit)} steps a run may take "
+                    f"(max_steps); raise simulation.dt or shorten the run ({self._t_end_words()})",
+                    key="simulation.dt", path=self.path)
+        count = self.sample_count()
+        n = self.n
+        what = f"storing {_num(count, 4)} samples of {n} link{'s' if n != 1 else ''}"
+        advice = (f"raise simulation.sample_dt (now {_num(self.sample_dt)} s between samples) or shorten "
+                  f"the run ({self._t_end_words()})")
+        try:
+            # The sample times themselves, then each output row as the core counts it (5 N + 6 numbers).
+            _mp._core.check_memory(count * (8.0 + (5 * n + 6) * 8.0), what, advice)
+        except InputError as exc:
+            raise ScenarioError(str(exc), key="simulation.sample_dt", path=self.path) from None
+
+    def check_animation(self, names: Optional[Mapping[str, str]] = None) -> Tuple[int, int]:
+        """Refuse, before the run, an ``[output]`` animation that would not fit (see
+        :func:`multipendulum.animation.plan`: frames, pixels, memory), naming the scenario's
+        keys, or the caller's ``names`` for them (the command line's options). Returns
+        ``(frames, side in pixels)``."""
+        from .animation import plan
+
+        out = self.outputs
+        words = {"fps": "output.fps", "speed": "output.speed", "dpi": "output.dpi", "trail": "output.trail",
+                 "duration": f"a shorter run ({self._t_end_words()})",
+                 "format": "write .mp4 (output.animation; its frames are streamed, not kept)"}
+        words.update(names or {})
+        suffix = Path(out.animation or "animation.gif").suffix.lower()
+        try:
+            return plan(0.0, self.t_end, out.fps, out.speed, out.dpi, trail=out.trail, n=self.n, format=suffix,
+                        names=words)
+        except ScenarioError:
+            raise
+        except InputError as exc:
+            key = next((k for k in ("fps", "speed", "dpi") if words[k] in str(exc).split(" must")[0]), None)
+            raise ScenarioError(str(exc), key=None if key is None else words[key], path=self.path) from None
 
     def t_eval(self) -> np.ndarray:
-        """Sample times: from 0 to ``t_end`` inclusive, evenly spaced, at most ``sample_dt`` apart."""
-        count = max(1, int(math.ceil(self.t_end / self.sample_dt - 1e-9)))
-        return np.linspace(0.0, self.t_end, count + 1)
+        """Sample times: from 0 to ``t_end`` inclusive, evenly spaced, at most ``sample_dt`` apart.
+        Refused (a :class:`ScenarioError` naming ``sample_dt`` and ``t_end``) before it is made
+        when the run's samples would not fit in memory."""
+        self.check_limits()
+        return np.linspace(0.0, self.t_end, int(self.sample_count()))
 
     def simulate_kwargs(self) -> Dict[str, Any]:
         kwargs: Dict[str, Any] = dict(
@@ -214,11 +273,22 @@ class Scenario:
         kwargs.update(self.build_torque())
         return kwargs
 
-    def run(self, progress: Optional[Callable[[float], Any]] = None):
-        """Simulate with :func:`multipendulum.simulate` and return its solution."""
+    def run(self, progress: Any = None):
+        """Simulate with :func:`multipendulum.simulate` and return its solution. ``progress``:
+        True for a bar on stderr, or a callable given the fraction done (see
+        :mod:`multipendulum._progress`). What the core refuses is a :class:`ScenarioError`
+        naming this scenario's file."""
+        from ._progress import reporter
+
         chain = self.build_chain()
         kwargs = self.simulate_kwargs()
-        return _mp.simulate(chain, self.theta0, self.omega0, self.t_end, progress=progress, **kwargs)
+        with reporter(progress, "simulate") as report:
+            try:
+                return _mp.simulate(chain, self.theta0, self.omega0, self.t_end, progress=report, **kwargs)
+            except ScenarioError:
+                raise
+            except InputError as exc:
+                raise ScenarioError(compact_numbers(str(exc)), path=self.path) from None
 
     def replace(self, **changes: Any) -> "Scenario":
         """A copy with some fields changed (e.g. ``t_end``); the changes are kept in ``overrides``
@@ -231,7 +301,9 @@ class Scenario:
                 overrides[key] = value
         if "t_end" in changes:
             _positive("simulation.t_end", changes["t_end"], self.path)
-        return dataclasses.replace(self, overrides=overrides, **changes)
+        changed = dataclasses.replace(self, overrides=overrides, **changes)
+        changed.check_limits()
+        return changed
 
     def metadata(self) -> Dict[str, Any]:
         """JSON-ready description for results files: enough to rerun the scenario."""
@@ -254,6 +326,11 @@ def default_scenario_path() -> Path:
 
 
 MAX_FILE_BYTES = 64 * 1024 * 1024
+#: The largest initial angle the core takes (|theta| <= 1e15 rad, where a step of 1e-15 rad is
+#: still resolved); a scenario in degrees is told its bound in degrees.
+MAX_ANGLE_RAD = 1e15
+#: The smallest rtol dop853 takes (below it the error estimate is round-off).
+MIN_RTOL = 1e-15
 #: The most links a scenario may ask for with a single number broadcast to every link (a
 #: million links is 0.1 s per rk4 step; more is a typo, not a simulation).
 MAX_LINKS = 1_000_000
@@ -314,9 +391,11 @@ def loads_scenario(
         raise ScenarioError("not a usable TOML file: arrays or tables nested too deeply", path=path) from None
     reader = _Reader(path, Path(base_dir) if base_dir is not None else None, files)
     scenario = reader.scenario(raw, text)
-    # Build what the core will be given, so its own checks fail now rather than mid-run.
+    # Build what the core will be given, so its own checks fail now rather than mid-run, and
+    # refuse a run that would not fit before anyone starts it.
     scenario.build_chain()
     scenario.build_torque()
+    scenario.check_limits()
     return scenario
 
 
@@ -380,9 +459,39 @@ def _jsonable(value: Any) -> Any:
 def _positive(key: str, value: Any, path: Optional[Path]) -> float:
     if not _is_number(value):
         raise ScenarioError(f"expected a number > 0, got {_type_name(value)} {_describe(value)}", key, path)
-    if not (math.isfinite(value) and value > 0):
+    if not math.isfinite(value):
+        raise ScenarioError(f"must be finite, got {_describe(value)}", key, path)
+    if not value > 0:
         raise ScenarioError(f"must be > 0, got {_describe(value)}", key, path)
     return float(value)
+
+
+def _num(value: float, digits: int = 6) -> str:
+    """A number for a message, compactly: ``0.01``, ``1e-12``, ``5e+06``, ``123456``; an integral
+    value below 10^6 without a decimal point. Never ``0.000000000001``."""
+    value = float(value)
+    if value.is_integer() and abs(value) < 1e6:
+        return str(int(value))
+    return f"{value:.{digits}g}"
+
+
+_LONG_NUMBER = re.compile(r"(?<![\w.])-?(?:\d+\.\d{7,}|\d{13,}(?:\.\d*)?|0\.0{5,}\d+)(?:e[-+]?\d+)?(?![\w.])")
+
+
+def compact_numbers(message: str) -> str:
+    """A message with every long decimal number in it (``0.000000000001``, 300 digits of
+    ``1e308``, ``1745329251994329.5``) written compactly (``1e-12``, ``1e+308``, ``1.74533e+15``)."""
+    return _LONG_NUMBER.sub(lambda m: _num(float(m.group(0))), message)
+
+
+def _max_steps() -> int:
+    """The longest run :func:`multipendulum.simulate` takes by default (its ``max_steps``)."""
+    import inspect
+
+    try:
+        return int(inspect.signature(_mp.simulate).parameters["max_steps"].default)
+    except (KeyError, TypeError, ValueError):  # pragma: no cover - a simulate without it
+        return 100_000_000
 
 
 class _Reader:
@@ -537,9 +646,16 @@ class _Reader:
         unit = self.choice(self.require(t, "initial", "unit", '"degrees" or "radians"'), "initial.unit",
                            ("degrees", "radians"))
         scale = math.pi / 180.0 if unit == "degrees" else 1.0
-        theta = self.per_link(self.require(t, "initial", "theta", "initial angles, one per link"),
-                              "initial.theta", n, allow_ramp=True)
+        theta_raw = self.require(t, "initial", "theta", "initial angles, one per link")
+        theta = self.per_link(theta_raw, "initial.theta", n, allow_ramp=True)
         omega = self.per_link(t.get("omega", 0.0), "initial.omega", n, allow_ramp=True)
+        # The core's bound on angles, said in the file's own unit.
+        bound = MAX_ANGLE_RAD / scale
+        for i, value in enumerate(theta):
+            if abs(value) > bound:
+                key = "initial.theta" + ("" if isinstance(theta_raw, (int, float)) else
+                                         (".from" if i == 0 else ".to") if isinstance(theta_raw, dict) else f"[{i}]")
+                raise self.error(key, f"must be within +-{_num(bound, 4)} {unit} (1e15 rad), got {_num(value)}")
         return np.asarray(theta) * scale, np.asarray(omega) * scale
 
     def simulation(self, raw: Any) -> Dict[str, Any]:
@@ -554,9 +670,13 @@ class _Reader:
         elif method in _FIXED_STEP:
             raise self.error("simulation.dt", f'missing; method "{method}" takes fixed steps and needs '
                              f"dt in s (a number > 0)")
+        rtol = self.number(t.get("rtol", 1e-10), "simulation.rtol", positive=True)
+        if rtol < MIN_RTOL and method == "dop853":
+            raise self.error("simulation.rtol", f"must be >= {_num(MIN_RTOL)} (dop853's error estimate is "
+                             f"round-off below it), got {_describe(rtol)}")
         out = {
             "t_end": t_end, "method": method, "dt": dt,
-            "rtol": self.number(t.get("rtol", 1e-10), "simulation.rtol", positive=True),
+            "rtol": rtol,
             "atol": self.number(t.get("atol", 1e-12), "simulation.atol", positive=True),
             "sample_dt": self.number(t.get("sample_dt", 0.01), "simulation.sample_dt", positive=True),
             "form": None,
@@ -600,35 +720,82 @@ class _Reader:
         if not isinstance(name, str) or not name:
             raise self.error("torque.file", f"expected a file name, got {_type_name(name)} {_describe(name)}")
         interpolation = self.choice(t.get("interpolation", "linear"), "torque.interpolation", ("linear", "cubic"))
-        times, values = self.csv_table(self.read_file(name, "torque.file"), name, n)
+        times, values, lines, header = self.csv_table(self.read_file(name, "torque.file"), name, n)
+        if interpolation == "cubic":
+            self.check_spline(name, times, values, lines, header)
         return TorqueSpec(kind, convention, {"t": times, "values": values, "interpolation": interpolation}, file=name)
 
+    def check_spline(self, name: str, times, values, lines, header) -> None:
+        """The natural cubic spline the core fits must stay finite: its second derivatives grow
+        like 6 |du| / dt^2, which overflows for huge torques on close times."""
+        t = np.asarray(times, dtype=float)
+        u = np.asarray(values, dtype=float)
+        with np.errstate(over="ignore", invalid="ignore"):
+            slopes = np.diff(u, axis=0) / np.diff(t)[:, None]
+            curvature = 6.0 * np.diff(slopes, axis=0) / np.diff(t)[1:, None]
+        bad = ~np.isfinite(slopes)
+        if not bad.any():
+            bad2 = ~np.isfinite(curvature)
+            if not bad2.any():
+                return
+            row, j = (int(v) for v in np.argwhere(bad2)[0])
+            row += 1
+        else:
+            row, j = (int(v) for v in np.argwhere(bad)[0])
+        label = f"link {j + 1}" + (f", {header[j + 1]!r}" if header is not None and j + 1 < len(header) else "")
+        raise self.error("torque.interpolation",
+                         f'{name} lines {lines[row]}-{lines[row + 1]}, column {j + 2} ({label}): the cubic spline through '
+                         f"{_num(u[row, j])} at t = {_num(t[row])} and {_num(u[row + 1, j])} at t = {_num(t[row + 1])} "
+                         'overflows; use interpolation = "linear" or smaller torques')
+
     def csv_table(self, text: str, name: str, n: int) -> Tuple[List[float], List[List[float]]]:
+        """A torque table: lines of ``t, u_1, ..., u_N`` (``#`` comments and one header line
+        allowed). Every message names the file's line and, for a bad value, its column (1 is
+        ``t``, column k + 1 the torque of link k, or the header's name for it)."""
         key = "torque.file"
         rows: List[List[float]] = []
+        lines: List[int] = []
+        header: Optional[List[str]] = None
+
+        def column(j: int) -> str:
+            label = "t" if j == 0 else f"link {j}"
+            if header is not None and j < len(header) and header[j]:
+                return f"column {j + 1} ({header[j]!r}, {label})"
+            return f"column {j + 1} ({label})"
+
         for lineno, line in enumerate(io.StringIO(text), start=1):
             stripped = line.split("#", 1)[0].strip()
             if not stripped:
                 continue
             cells = [c.strip() for c in stripped.split(",")]
-            try:
-                numbers = [float(c) for c in cells]
-            except ValueError:
-                if not rows and not any(_is_float(c) for c in cells):
-                    continue  # a header line
-                raise self.error(key, f"{name} line {lineno}: expected numbers, got {stripped!r}") from None
-            if len(numbers) != n + 1:
+            if not rows and not any(_is_float(c) for c in cells):
+                header = cells  # a header line (names for the columns)
+                continue
+            if len(cells) != n + 1:
                 raise self.error(key, f"{name} line {lineno}: expected {n + 1} columns (t, then one torque "
-                                 f"per link), got {len(numbers)}")
-            if not all(math.isfinite(x) for x in numbers):
-                raise self.error(key, f"{name} line {lineno}: values must be finite, got {stripped!r}")
+                                 f"per link), got {len(cells)}")
+            numbers = []
+            for j, cell in enumerate(cells):
+                if not _is_float(cell):
+                    raise self.error(key, f"{name} line {lineno}, {column(j)}: expected a number, got {cell!r}")
+                value = float(cell)
+                if not math.isfinite(value):
+                    raise self.error(key, f"{name} line {lineno}, {column(j)}: must be finite, got {cell!r}")
+                numbers.append(value)
             if rows and not numbers[0] > rows[-1][0]:
-                raise self.error(key, f"{name} line {lineno}: times must increase, got {numbers[0]!r} "
-                                 f"after {rows[-1][0]!r}")
+                raise self.error(key, f"{name} line {lineno}, {column(0)}: times must increase, got "
+                                 f"{_num(numbers[0])} after {_num(rows[-1][0])} on line {lines[-1]}")
+            if rows:
+                for j in range(1, n + 1):
+                    if not math.isfinite(numbers[j] - rows[-1][j]):
+                        raise self.error(key, f"{name} line {lineno}, {column(j)}: the change from line "
+                                         f"{lines[-1]} ({_num(rows[-1][j])} to {_num(numbers[j])}) overflows; "
+                                         "torques must be below about 1e307 N m")
             rows.append(numbers)
+            lines.append(lineno)
         if len(rows) < 2:
             raise self.error(key, f"{name}: expected at least 2 rows of numbers, got {len(rows)}")
-        return [r[0] for r in rows], [r[1:] for r in rows]
+        return [r[0] for r in rows], [r[1:] for r in rows], lines, header
 
     def outputs(self, raw: Any) -> Outputs:
         t = self.table(raw, "output", _OUTPUT_KEYS)
