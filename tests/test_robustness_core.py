@@ -129,3 +129,30 @@ def test_chains_small_or_large_but_representable_are_accepted():
     for scale in (1e-60, 1e60):
         chain = mp.Chain([scale, scale], [1.0, 1.0], g=9.81)
         assert np.isfinite(chain.accelerations([0.1, 0.2], [0, 0])).all()
+
+
+@pytest.mark.parametrize("call", ["simulate", "batch", "lyapunov", "flip_times", "flip_map", "ensemble"])
+def test_long_calls_report_rising_progress_ending_at_one(call):
+    chain = mp.Chain([1.0, 1.0], [1.0, 1.0])
+    th = np.random.default_rng(2).uniform(-2, 2, (2000, 2))
+    seen = []
+    report = seen.append
+    runs = {
+        "simulate": lambda: mp.simulate(chain, [2.0, 2.5], [0, 0], 400.0, method="rk4", dt=1e-4, t_eval=[400.0],
+                                        progress=report),
+        "batch": lambda: mp.simulate(chain, th, np.zeros_like(th), 20.0, method="rk4", dt=1e-3, t_eval=[20.0],
+                                     progress=report),
+        "lyapunov": lambda: mp.lyapunov(chain, [2.0, 2.5], [0, 0], t_end=3000.0, progress=report),
+        "flip_times": lambda: mp.flip_times(chain, np.repeat(th, 20, axis=0), t_max=100.0, progress=report),
+        "flip_map": lambda: mp.flip_map(chain, np.linspace(-3, 3, 200), np.linspace(-3, 3, 200), t_max=100.0,
+                                        progress=report),
+        "ensemble": lambda: mp.ensemble(chain, th, np.zeros_like(th), 20.0, method="rk4", dt=1e-3, progress=report),
+    }
+    runs[call]()
+    assert len(seen) >= 3, f"{call}: only {seen} reported (the call lasts over half a second)"
+    assert seen == sorted(seen) and seen[-1] == 1.0 and 0.0 <= seen[0] < 1.0, seen
+    assert any(0.0 < f < 1.0 for f in seen), seen
+    with pytest.raises(mp.InputError, match="progress"):
+        {"simulate": lambda: mp.simulate(chain, [1, 1], [0, 0], 1.0, progress="yes"),
+         "lyapunov": lambda: mp.lyapunov(chain, [1, 1], [0, 0], 1.0, progress=3)}.get(call, lambda: mp.simulate(
+             chain, [1, 1], [0, 0], 1.0, progress=[]))()

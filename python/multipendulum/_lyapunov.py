@@ -12,6 +12,7 @@ import numpy.typing as npt
 import multipendulum._core as _core
 from ._chain import Chain, as_state, check_chain
 from ._convert import Integer, as_float
+from ._progress import Progress, reporter
 from ._torque import TorqueLike, core_torque, normalise_torque
 from .errors import InputError
 
@@ -40,13 +41,15 @@ def _link(link: Optional[Integer], n: int) -> Optional[int]:
 
 def lyapunov(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: float, dt: float = 0.005,
              k: Optional[Integer] = None, renorm_every: Integer = 10,
-             torque: Optional[TorqueLike] = None) -> LyapunovResult:
+             torque: Optional[TorqueLike] = None, progress: Progress = None) -> LyapunovResult:
     """The ``k`` largest Lyapunov exponents (default: the full spectrum, k = 2N).
 
     Integrates the variational (tangent) equations of the Lagrangian form with rk4 at step ``dt``
     and re-orthonormalises the tangent vectors every ``renorm_every`` steps (Benettin et al. 1980).
     For the undriven chain the spectrum comes in +/- pairs summing to ~0. ``torque`` may depend
-    on time (a constant, :class:`Sinusoid` or :class:`Table`).
+    on time (a constant, :class:`Sinusoid` or :class:`Table`). ``progress``: True for a bar on
+    stderr, or a callable given the fraction done (:mod:`multipendulum._progress`); Ctrl-C stops
+    the run within a fraction of a second (``KeyboardInterrupt``).
 
     >>> import multipendulum as mp
     >>> res = mp.lyapunov(mp.Chain([1, 1], [1, 1]), [2.0, 2.5], [0, 0], t_end=100.0)
@@ -66,9 +69,10 @@ def lyapunov(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: 
             or not 1 <= renorm_every < 2**64:
         raise InputError(f"renorm_every must be a positive integer (steps), got {renorm_every!r}")
     spec, joint = normalise_torque(torque, None, chain.n)
-    exps, times, hist = _core.lyapunov(chain._c, th0.tolist(), om0.tolist(), as_float(t_end, "t_end"),
-                                       dt=as_float(dt, "dt"), k=int(k), renorm_every=int(renorm_every),
-                                       torque=core_torque(spec, joint))
+    with reporter(progress, "lyapunov") as report:
+        exps, times, hist = _core.lyapunov(chain._c, th0.tolist(), om0.tolist(), as_float(t_end, "t_end"),
+                                           dt=as_float(dt, "dt"), k=int(k), renorm_every=int(renorm_every),
+                                           torque=core_torque(spec, joint), progress=report)
     return LyapunovResult(exps, times, hist.reshape(times.size, int(k)))
 
 

@@ -40,12 +40,14 @@ import math
 import sys
 import threading
 import time
-from typing import Any, Callable, Iterator, Optional, TextIO
+from typing import Any, Callable, Iterator, Optional, TextIO, Union
 
 __all__ = ["check", "reporter", "make", "Steps", "scaled", "TextBar", "format_seconds", "Report"]
 
 #: What a progress callback looks like: ``report(fraction)`` with a fraction in [0, 1].
 Report = Callable[[float], Any]
+#: What a ``progress=`` argument may be: None or False (none), True (a bar), or a :data:`Report`.
+Progress = Union[None, bool, Report]
 
 
 def format_seconds(seconds: float) -> str:

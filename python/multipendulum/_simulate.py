@@ -13,6 +13,8 @@ import multipendulum._core as _core
 from ._chain import Chain, as_state
 from ._convert import Integer, as_float, as_floats
 from ._lyapunov import lyapunov, trustworthy_until
+from ._progress import Progress, reporter
+from ._progress import check as _check_progress
 from ._torque import TorqueLike, core_torque, normalise_torque, torque_object
 from .checkpoint import Archive, Writer, cadence, load_checkpoint
 from .errors import InputError, IntegrationError
@@ -209,7 +211,7 @@ def simulate(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: 
              dt: Optional[float] = None, rtol: float = DEFAULTS["rtol"], atol: float = DEFAULTS["atol"],
              torque: Optional[TorqueLike] = None, joint_torque: Optional[TorqueLike] = None,
              t_eval: Optional[npt.ArrayLike] = None, form: Optional[str] = None, adaptive: bool = True,
-             max_steps: Integer = int(DEFAULTS["max_steps"]), progress: Optional[Callable[[float], object]] = None,
+             max_steps: Integer = int(DEFAULTS["max_steps"]), progress: Progress = None,
              events: Optional[Sequence[Union[Flip, Crossing, Event]]] = None, checkpoint: Optional[PathLike] = None,
              checkpoint_every: Optional[Integer] = None, checkpoint_seconds: Optional[float] = None,
              checkpoint_info: Optional[Dict[str, Any]] = None) -> Solution:
@@ -231,7 +233,10 @@ def simulate(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: 
 
     A leading batch axis on ``theta0``/``omega0`` (B, N) runs the B trajectories in parallel on
     all cores (GIL released); a Python torque function runs them one after another.
-    ``progress``: optional ``callable(fraction)``, called about ten times a second.
+    ``progress``: True for a bar on stderr (tqdm's when installed), or a callable given the
+    fraction done about ten times a second (:mod:`multipendulum._progress`). Ctrl-C stops any
+    run within a fraction of a second (``KeyboardInterrupt``; a checkpointed run writes a last
+    checkpoint first).
     ``events``: :class:`Flip` / :class:`Crossing` / :class:`Event` conditions, located by root finding on the
     dense output; ``sol.events[i]`` holds event i's crossings, ``sol.stopped_at`` the time a
     terminal one ended the run.
@@ -275,8 +280,7 @@ def simulate(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: 
         raise InputError(f'form must be "lagrangian" or "hamiltonian", got {got}')
     if not isinstance(adaptive, (bool, np.bool_)):
         raise InputError(f"adaptive must be True or False, got {adaptive!r}")
-    if progress is not None and not callable(progress):
-        raise InputError(f"progress must be callable, got {type(progress).__name__}")
+    _check_progress(progress)
     if not isinstance(max_steps, (int, np.integer)) or not 0 < max_steps < 2**64:
         raise InputError(f"max_steps must be a positive integer below 2^64, got {max_steps!r}")
     spec, joint = normalise_torque(torque, joint_torque, chain.n)
@@ -329,7 +333,7 @@ def _refuse_nan(data: Dict[str, Any]) -> None:
 
 
 def _run(chain: Chain, th0: npt.NDArray[Any], om0: npt.NDArray[Any], run: Dict[str, Any],
-         t_eval: Optional[npt.NDArray[Any]], progress: Optional[Callable[[float], object]],
+         t_eval: Optional[npt.NDArray[Any]], progress: Progress,
          event_specs: Sequence[_core.Event] = (), writer: Optional[Writer] = None, resume: Optional[bytes] = None,
          wall_before: float = 0.0, batch_shape: Tuple[int, ...] = ()) -> Solution:
     """Call the core with checked arguments (``run``: as stored in a checkpoint archive)."""
@@ -337,15 +341,14 @@ def _run(chain: Chain, th0: npt.NDArray[Any], om0: npt.NDArray[Any], run: Dict[s
     spec = None if spec is None else tuple(spec)
     ckpt = None if writer is None else (writer.every_steps or 0, writer.every_seconds, writer)
     start = time.perf_counter()
-    data = _core.simulate(chain._c, np.ascontiguousarray(th0, dtype=np.float64).ravel(),
-                          np.ascontiguousarray(om0, dtype=np.float64).ravel(), run["t_end"], method=run["method"],
-                          form=run["form"], dt=run["dt"], rtol=run["rtol"], atol=run["atol"],
-                          adaptive=run["adaptive"], t_eval=t_eval, max_steps=run["max_steps"],
-                          torque=core_torque(spec, run["joint"]), progress=progress, events=list(event_specs), checkpoint=ckpt,
-                          resume=resume)
+    with reporter(progress, "simulate") as report:
+        data = _core.simulate(chain._c, np.ascontiguousarray(th0, dtype=np.float64).ravel(),
+                              np.ascontiguousarray(om0, dtype=np.float64).ravel(), run["t_end"], method=run["method"],
+                              form=run["form"], dt=run["dt"], rtol=run["rtol"], atol=run["atol"],
+                              adaptive=run["adaptive"], t_eval=t_eval, max_steps=run["max_steps"],
+                              torque=core_torque(spec, run["joint"]), progress=report, events=list(event_specs),
+                              checkpoint=ckpt, resume=resume)
     wall = wall_before + time.perf_counter() - start
-    if progress is not None:
-        progress(1.0)
     _refuse_nan(data)
     stats = Stats._from(data["stats"], bool(batch_shape), wall)
     sol = Solution(chain, run["method"], data["form"], data, batch_shape, stats, len(event_specs))
@@ -357,7 +360,7 @@ def _run(chain: Chain, th0: npt.NDArray[Any], om0: npt.NDArray[Any], run: Dict[s
     return sol
 
 
-def resume(path: Union[PathLike, Archive], progress: Optional[Callable[[float], object]] = None,
+def resume(path: Union[PathLike, Archive], progress: Progress = None,
            checkpoint: bool = True, any_version: bool = False) -> Solution:
     """Continue the run saved in the checkpoint archive ``path`` to its ``t_end`` and return its
     :class:`~multipendulum.Solution`: all of it from t = 0, bit-for-bit the arrays the

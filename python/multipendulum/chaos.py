@@ -11,6 +11,8 @@ import numpy.typing as npt
 import multipendulum._core as _core
 from ._chain import Chain, as_state, check_chain
 from ._convert import Integer, as_float, as_floats
+from ._progress import Progress, reporter
+from ._progress import check as _check_progress
 from ._torque import TorqueLike, core_torque, normalise_torque
 from ._lyapunov import LyapunovResult, _link, lyapunov, trustworthy_until
 from ._simulate import Crossing, EventRecord, Flip, simulate
@@ -39,18 +41,20 @@ def flip_energy_threshold(chain: Chain, link: Optional[Integer] = None) -> float
 
 def flip_times(chain: Chain, theta0: npt.ArrayLike, omega0: Optional[npt.ArrayLike] = None, t_max: float = 10.0,
                dt: float = 0.01, link: Optional[Integer] = None,
-               torque: Optional[TorqueLike] = None) -> npt.NDArray[np.float64]:
+               torque: Optional[TorqueLike] = None, progress: Progress = None) -> npt.NDArray[np.float64]:
     """First time each initial state's link ``link`` (None: any link) reaches |theta| = pi,
     by rk4 at step ``dt`` and root finding within the step; ``inf`` where it never does by
-    ``t_max``. ``theta0`` (..., N); ``omega0`` defaults to rest. Parallel on all cores."""
+    ``t_max``. ``theta0`` (..., N); ``omega0`` defaults to rest. Parallel on all cores;
+    ``progress`` as for :func:`lyapunov`, and Ctrl-C stops the work."""
     check_chain(chain)
     th0 = as_state(theta0, "theta0", chain.n)
     om0 = np.zeros_like(th0) if omega0 is None else as_state(omega0, "omega0", chain.n)
     if th0.shape != om0.shape:
         raise InputError(f"theta0 and omega0 must have the same shape, got {th0.shape} and {om0.shape}")
     spec, _ = normalise_torque(torque, None, chain.n)
-    out = _core.first_flips(chain._c, th0.ravel(), om0.ravel(), as_float(t_max, "t_max"), dt=as_float(dt, "dt"),
-                            link=_link(link, chain.n), torque=core_torque(spec, False))
+    with reporter(progress, "flip times") as report:
+        out = _core.first_flips(chain._c, th0.ravel(), om0.ravel(), as_float(t_max, "t_max"), dt=as_float(dt, "dt"),
+                                link=_link(link, chain.n), torque=core_torque(spec, False), progress=report)
     return out.reshape(th0.shape[:-1])
 
 
@@ -105,15 +109,17 @@ def _grid(yb: npt.NDArray[np.float64], xb: npt.NDArray[np.float64], vary: Tuple[
 def flip_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_max: float = 10.0, dt: float = 0.01,
              vary: Vary = ("theta", 0, "theta", 1), base_theta: Optional[npt.ArrayLike] = None,
              base_omega: Optional[npt.ArrayLike] = None, link: Optional[Integer] = None,
-             torque: Optional[TorqueLike] = None) -> FlipMap:
+             torque: Optional[TorqueLike] = None, progress: Progress = None) -> FlipMap:
     """Flip-time map over a grid of two initial values (radians or rad/s).
 
     ``vary=(kind_x, index_x, kind_y, index_y)`` names the two varied quantities, each ``"theta"``
     or ``"omega"`` of a link (default: theta_1 along x, theta_2 along y, from rest). The rest of
     the initial state is ``base_theta`` / ``base_omega`` (default 0). Under a ``torque`` the chain
-    can gain energy, so no cell is marked impossible (``threshold = -inf``).
+    can gain energy, so no cell is marked impossible (``threshold = -inf``). ``progress`` as for
+    :func:`lyapunov`.
     """
     check_chain(chain)
+    _check_progress(progress)
     x, y = as_floats(x, "x").ravel(), as_floats(y, "y").ravel()
     n = chain.n
     # The grid's initial states (2N), times, energies and flags per cell, before they are made.
@@ -123,7 +129,7 @@ def flip_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_max: float = 10
     om_base = np.zeros(n) if base_omega is None else as_state(base_omega, "base_omega", n)
     vary = _check_vary(vary, n)
     theta0, omega0 = _grid(y, x, vary, th_base, om_base)
-    times = flip_times(chain, theta0, omega0, t_max=t_max, dt=dt, link=link, torque=torque)
+    times = flip_times(chain, theta0, omega0, t_max=t_max, dt=dt, link=link, torque=torque, progress=progress)
     threshold = flip_threshold(chain, link, torque)
     allowed = cast("npt.NDArray[np.bool_]", chain.energy(theta0, omega0) >= threshold)  # theta0 has a grid's axes
     return FlipMap(x, y, times, allowed, float(t_max), threshold)
@@ -210,10 +216,11 @@ class EnsembleResult:
 
 def ensemble(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: float, method: str = "dop853",
              dt: Optional[float] = None, rtol: float = 1e-10, atol: float = 1e-12, torque: Optional[TorqueLike] = None,
-             joint_torque: Optional[TorqueLike] = None) -> EnsembleResult:
+             joint_torque: Optional[TorqueLike] = None, progress: Progress = None) -> EnsembleResult:
     """Run B trajectories (rows of ``theta0``, ``omega0``: (B, N)) in parallel in the Rust core
     and keep only their final states and per-trajectory reductions: memory O(B N), not
-    O(B N steps). Results are identical whatever the number of threads."""
+    O(B N steps). Results are identical whatever the number of threads. ``progress`` as for
+    :func:`lyapunov`."""
 
     check_chain(chain)
     t_end = as_float(t_end, "t_end")
@@ -221,7 +228,7 @@ def ensemble(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: 
     if th0.ndim != 2 or th0.shape != om0.shape:
         raise InputError(f"theta0 and omega0 must both have shape (B, {chain.n}), got {th0.shape} and {om0.shape}")
     sol = simulate(chain, th0, om0, t_end, method=method, dt=dt, rtol=rtol, atol=atol, torque=torque,
-                   joint_torque=joint_torque, t_eval=[t_end], events=[Flip(terminal=False)])
+                   joint_torque=joint_torque, t_eval=[t_end], events=[Flip(terminal=False)], progress=progress)
     first = np.array([rec[0].t[0] if rec[0].t.size else np.inf
                       for rec in cast("List[List[EventRecord]]", sol.events)])  # a batch: a list per trajectory
     return EnsembleResult(float(t_end), sol.theta[:, -1], sol.omega[:, -1], sol.p[:, -1],
