@@ -156,3 +156,41 @@ def test_long_calls_report_rising_progress_ending_at_one(call):
         {"simulate": lambda: mp.simulate(chain, [1, 1], [0, 0], 1.0, progress="yes"),
          "lyapunov": lambda: mp.lyapunov(chain, [1, 1], [0, 0], 1.0, progress=3)}.get(call, lambda: mp.simulate(
              chain, [1, 1], [0, 0], 1.0, progress=[]))()
+
+
+def test_the_trustworthy_estimate_fits_a_stiff_chain_instead_of_failing_the_run(tmp_path):
+    # 200 links of 1 cm released at 20 degrees: the summary's Lyapunov run at the old fixed
+    # dt = 0.005 blew up and the whole command failed with nothing written.
+    n = 200
+    scenario = tmp_path / "stiff.toml"
+    scenario.write_text("[chain]\nlengths = [%s]\nmasses = [%s]\n[initial]\nunit = \"degrees\"\ntheta = [%s]\n"
+                        "[simulation]\nt_end = 1.0\n" % (", ".join(["0.01"] * n), ", ".join(["1.0"] * n),
+                                                          ", ".join(["20.0"] * n)))
+    out = tmp_path / "out"
+    proc = subprocess.run([sys.executable, "-m", "multipendulum.cli", "run", str(scenario), "-o", str(out),
+                           "--no-animation", "--no-plots"], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert (out / "results.npz").exists()
+    line = next(line for line in proc.stdout.splitlines() if "trustworthy" in line)
+    assert "unknown" not in line and "Lyapunov exponent" in line, line
+
+
+def test_an_estimate_that_cannot_be_made_says_why_and_keeps_the_run():
+    long = mp.Chain([0.1] * 201, [1.0] * 201)
+    sol = mp.simulate(long, np.full(201, 0.1), np.zeros(201), 0.05, t_eval=[0.05])
+    until, why = sol.trustworthy()
+    assert until is None and "more than 200 links" in why
+    assert sol.trustworthy_until() is None and np.isfinite(sol.theta).all()
+    batch = mp.simulate(mp.Chain([1, 1], [1, 1]), [[1, 1], [2, 2]], [[0, 0], [0, 0]], 1.0, method="rk4", dt=0.01)
+    assert batch.trustworthy() == (None, "not estimated for a batch (estimate one trajectory at a time)")
+
+
+def test_the_estimate_starts_from_the_initial_state_not_the_first_output():
+    chain = mp.Chain([1, 1], [1, 1])
+    whole = mp.simulate(chain, [2.0, 2.5], [0, 0], 30.0)
+    late = mp.simulate(chain, [2.0, 2.5], [0, 0], 30.0, t_eval=[29.0, 30.0])
+    assert late.trustworthy_until() == whole.trustworthy_until()
+    # A fixed-step run whose own error is beyond the tolerance is trustworthy for no time at all.
+    coarse = mp.simulate(chain, [2.0, 2.5], [0, 0], 10.0, method="rk4", dt=0.2)
+    until, why = coarse.trustworthy(tolerance=1e-6)
+    assert until == 0.0 and "beyond the tolerance" in why

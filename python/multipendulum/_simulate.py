@@ -144,6 +144,7 @@ class Solution:
     _torque: Optional[TorqueLike]
     _joint: bool
     _rtol: float
+    _initial: Tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]
 
     def __init__(self, chain: Chain, method: str, form: str, data: Dict[str, Any], batch_shape: Tuple[int, ...],
                  stats: Stats, n_events: int = 0) -> None:
@@ -189,17 +190,53 @@ class Solution:
         ``ln(tolerance / eps) / lambda_max``, with lambda_max from the variational equations over
         the run (at most ``horizon`` seconds of it) and eps the run's own error level (dop853:
         its rtol; fixed-step methods: the measured energy error). ``inf`` for regular motion;
-        None where it cannot be computed (a batch, or a torque given as a Python function)."""
-        if self.theta.ndim != 2 or callable(self._torque) or self._joint:
-            return None
+        None where it cannot be computed (:meth:`trustworthy` says why). An auxiliary estimate:
+        it never fails the run it describes."""
+        return self.trustworthy(tolerance, horizon)[0]
+
+    #: The most rk4 steps the estimate takes (it shortens its span to stay within them).
+    TRUST_STEPS = 200_000
+    #: The longest chain whose fastest time scale the estimate measures (a dense eigenvalue solve).
+    TRUST_MAX_LINKS = 200
+
+    def trustworthy(self, tolerance: float = 1e-2, horizon: float = 100.0) -> Tuple[Optional[float], str]:
+        """:meth:`trustworthy_until` and a sentence on how it was found, or why it could not be.
+
+        The Lyapunov run resolves the chain's fastest motion: its step is a twentieth of the
+        shortest time scale of the linearised motion at the initial state (``1 / max |eigenvalue|``
+        of :meth:`Chain.jacobian`), at most 0.005 s, and it spans at most :attr:`TRUST_STEPS` of
+        them (a stiff chain gets a shorter span, said in the sentence)."""
+        if self.theta.ndim != 2:
+            return None, "not estimated for a batch (estimate one trajectory at a time)"
+        if callable(self._torque):
+            return None, "not estimated under a torque given as a Python function"
+        if self._joint:
+            return None, "not estimated under joint-motor torques"
+        if self.n > self.TRUST_MAX_LINKS:
+            return None, f"not estimated for chains of more than {self.TRUST_MAX_LINKS} links"
         span = float(min(self.t[-1], horizon))
         if span <= 0:
-            return None
-        lam = lyapunov(self.chain, self.theta[0], self.omega[0], span, dt=min(0.005, span / 20), k=1,
-                       torque=self._torque).largest
+            return None, "the run has no time span"
+        theta0, omega0 = self._initial
+        try:
+            rho = float(np.max(np.abs(np.linalg.eigvals(self.chain.jacobian(theta0, omega0)))))
+        except (np.linalg.LinAlgError, InputError, IntegrationError) as exc:
+            return None, f"the linearisation at the initial state failed ({exc})"
+        dt = min(0.005, span / 20, 0.05 / rho if rho > 0 else 0.005)
+        note = ""
+        if span / dt > self.TRUST_STEPS:
+            span = self.TRUST_STEPS * dt
+            note = f", over the first {span:.3g} s (a stiff chain: steps of {dt:.2g} s)"
+        try:
+            lam = lyapunov(self.chain, theta0, omega0, span, dt=dt, k=1, torque=self._torque).largest
+        except (InputError, IntegrationError) as exc:
+            return None, f"the Lyapunov run for the estimate failed ({exc})"
         eps = self._rtol if self.method == "dop853" else max(float(self.stats.energy_error), 1e-16)
+        if eps >= tolerance:
+            return 0.0, f"the run's own error level {eps:.2g} is already beyond the tolerance {tolerance:g}"
         # Below ~0.05/s over this span the separation is not exponential: regular motion.
-        return trustworthy_until(lam if lam > 0.05 else 0.0, tolerance, eps)
+        until = trustworthy_until(lam if lam > 0.05 else 0.0, tolerance, eps)
+        return until, f"largest Lyapunov exponent {lam:.3g}/s{note}"
 
     def __repr__(self) -> str:
         return (f"Solution(method={self.method!r}, n={self.n}, outputs={self.t.size}, "
@@ -353,6 +390,7 @@ def _run(chain: Chain, th0: npt.NDArray[Any], om0: npt.NDArray[Any], run: Dict[s
     stats = Stats._from(data["stats"], bool(batch_shape), wall)
     sol = Solution(chain, run["method"], data["form"], data, batch_shape, stats, len(event_specs))
     sol._joint, sol._rtol = run["joint"], run["rtol"]
+    sol._initial = (np.asarray(th0, dtype=np.float64), np.asarray(om0, dtype=np.float64))
     if spec is not None and spec[0] != "callable":
         sol._torque = torque_object(spec, chain.n)
     else:
