@@ -39,8 +39,11 @@ def test_flip_time_of_a_single_pendulum_matches_the_quadrature():
     g, l, w0 = 9.81, 1.0, 7.0  # enough energy to go over the top: w0^2 > 4 g / l
     chain = mp.Chain(lengths=[l], masses=[1.0], g=g)
     exact, _ = quad(lambda th: 1.0 / np.sqrt(w0**2 - 2 * g / l * (1 - np.cos(th))), 0.0, np.pi, epsabs=1e-13)
-    t = mp.flip_times(chain, [0.0], [w0], t_max=5.0, dt=0.01)
-    assert abs(float(t) - exact) < 1e-6, (float(t), exact)
+    err = {dt: abs(float(mp.flip_times(chain, [0.0], [w0], t_max=5.0, dt=dt)) - exact) for dt in (0.02, 0.01)}
+    # rk4 is of order 4 and the root is found on the step's cubic Hermite interpolant (order 4
+    # too): halving the step must divide the error by 2^4 = 16; at least 2^3 is asked. The
+    # quadrature is good to 1e-13, far below either error.
+    assert 1e-12 < err[0.01] <= err[0.02] / 2**3, err
     assert mp.flip_times(chain, [0.0], [5.0], t_max=5.0, dt=0.01) == np.inf  # not enough energy
 
 
@@ -107,10 +110,24 @@ def test_ensemble_keeps_final_states_and_reductions_equal_to_single_runs():
     om0 = rng.uniform(-1, 1, (12, 2))
     ens = mp.ensemble(DOUBLE, th0, om0, t_end=8.0)
     assert ens.theta.shape == (12, 2) and ens.first_flip.shape == (12,)
+    # The energy error from the states themselves: the change in energy since t = 0 (no torque:
+    # no work), by the chain's energy, over the core's scale S = g sum |h_i| + max T. Energy is
+    # conserved, so T <= E0 - U_min = E0 + g sum |h_i| and S lies between g sum |h_i| and
+    # 2 g sum |h_i| + E0; the reported error must lie between the two quotients (and is not 0:
+    # dop853 at rtol 1e-10 over 8 s of chaos does not conserve energy to the last bit).
+    m, c, length = DOUBLE.masses, DOUBLE.com, DOUBLE.lengths
+    below = np.concatenate([np.cumsum(m[::-1])[::-1][1:], [0.0]])  # mass hanging below each link
+    depth = DOUBLE.g * np.sum(np.abs(m * c + length * below))
     for b in (0, 5, 11):
         single = mp.simulate(DOUBLE, th0[b], om0[b], 8.0, t_eval=[8.0])
         np.testing.assert_array_equal(ens.theta[b], single.theta[-1])
         assert ens.energy_error[b] == single.stats.energy_error
+        e0 = DOUBLE.energy(th0[b], om0[b])
+        change = abs(DOUBLE.energy(ens.theta[b], ens.omega[b]) - e0)
+        assert change > 0
+        lo, hi = change / (2 * depth + e0), change / depth
+        roundoff = 16 * np.finfo(float).eps * (abs(e0) + 2 * depth) / depth  # of the two energies, relative
+        assert lo - roundoff <= ens.energy_error[b] <= hi + roundoff, (b, ens.energy_error[b], lo, hi)
     # First flips agree with the dedicated flip kernel to the accuracy of its rk4 steps.
     flips = mp.flip_times(DOUBLE, th0, om0, t_max=8.0, dt=0.001)
     np.testing.assert_array_equal(np.isfinite(ens.first_flip), np.isfinite(flips))

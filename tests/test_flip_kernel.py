@@ -1,5 +1,7 @@
 """The SIMD flip-map kernel (crates/core/src/flipkernel.rs) behind mp.flip_times for the undriven
 double pendulum, against the per-trajectory rk4 path it replaces (MULTIPENDULUM_FLIP_KERNEL=scalar)."""
+import os
+
 import numpy as np
 import pytest
 
@@ -42,20 +44,56 @@ def test_kernel_flip_times_equal_the_scalar_paths_where_the_motion_is_regular(mo
     assert (fast == 0).any()
 
 
-def test_every_kernel_path_gives_the_same_bits(monkeypatch):
+def cpu_flags():
+    """The CPU's feature flags from /proc/cpuinfo (empty where there is none: not Linux x86)."""
+    try:
+        text = open("/proc/cpuinfo").read()
+    except OSError:
+        return set()
+    line = next((l for l in text.splitlines() if l.startswith("flags")), "")
+    return set(line.split(":", 1)[1].split()) if ":" in line else set()
+
+
+def expected_simd_paths(flags):
+    """The kernel's SIMD paths this CPU can run (the kernel's own test: AVX2 or AVX-512F, and FMA)."""
+    paths = []
+    if {"avx2", "fma"} <= flags:
+        paths.append("avx2")
+    if {"avx512f", "fma"} <= flags:
+        paths.append("avx512")
+    return paths
+
+
+def test_every_kernel_path_gives_the_same_bits(monkeypatch, record_property):
     th0 = grid(40)
     om0 = np.random.default_rng(2).uniform(-2, 2, th0.shape)
     ref = flips(monkeypatch, "portable", CHAINS["rods"], th0, om0, t_max=8.0)
-    ran = 0
-    for path in ("avx2", "avx512", "auto"):
+    assert np.isfinite(ref).any() and np.isinf(ref).any()
+    expected = expected_simd_paths(cpu_flags())
+    ran, refused = [], {}
+    for path in ("avx2", "avx512"):
         try:
             got = flips(monkeypatch, path, CHAINS["rods"], th0, om0, t_max=8.0)
         except mp.InputError as e:
             assert "not supported by this CPU" in str(e)
+            refused[path] = str(e)
             continue
-        ran += 1
+        ran.append(path)
         assert got.tobytes() == ref.tobytes(), path
-    assert ran >= 1  # "auto" always runs
+    # "auto" takes the best path there is: the same bits again.
+    assert flips(monkeypatch, "auto", CHAINS["rods"], th0, om0, t_max=8.0).tobytes() == ref.tobytes()
+    record_property("kernel_paths_compared", ",".join(["portable"] + ran))
+    print(f"flip kernel: compared portable with {', '.join(ran) or 'no SIMD path'}; "
+          f"the CPU offers {', '.join(expected) or 'none'}")
+    # A path the CPU offers must run: a kernel that refuses it would leave it untested.
+    missing = [p for p in expected if p not in ran]
+    assert not missing, f"the CPU supports {missing} but the kernel refused them: {refused}"
+    if not ran:
+        message = ("no SIMD path ran on this CPU (no AVX2+FMA): the portable path was compared with "
+                   "itself only")
+        if os.environ.get("CI", "").lower() == "true":
+            pytest.fail(message + "; CI must run on a machine with AVX2 to check the promise")
+        pytest.skip(message)
 
 
 @pytest.mark.parametrize("name", list(CHAINS))
