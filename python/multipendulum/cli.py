@@ -20,6 +20,8 @@ import time
 from pathlib import Path
 from typing import Any, Callable, List, Optional, Sequence, TextIO
 
+from ._progress import Steps, TextBar
+
 __all__ = ["main", "command", "ProgressBar", "build_parser"]
 
 PROG = "multipendulum"
@@ -38,49 +40,14 @@ def command(add: Callable[[Any, argparse.ArgumentParser], None]):
 # Progress
 
 
-class ProgressBar:
-    """A one-line progress bar on stderr, shown only on a terminal, only when not quiet, and only
-    once the job has taken more than ``delay`` seconds. Call it with a fraction in [0, 1]."""
+class ProgressBar(TextBar):
+    """The command's progress bar (:class:`multipendulum._progress.TextBar`): one line on stderr
+    with the time elapsed and the time remaining, shown only on a terminal, only when not quiet,
+    and only once the job has taken more than ``delay`` seconds. Call it with a fraction in [0, 1]."""
 
     def __init__(self, label: str, quiet: bool = False, stream: Optional[TextIO] = None,
                  delay: float = 1.0, width: int = 30):
-        self.stream = sys.stderr if stream is None else stream
-        isatty = getattr(self.stream, "isatty", None)
-        self.enabled = not quiet and bool(isatty and isatty())
-        self.label = label
-        self.delay = delay
-        self.width = width
-        self.start = time.monotonic()
-        self.shown = False
-        self._last = 0.0
-        self._fraction = 0.0
-
-    def __call__(self, fraction: float) -> None:
-        if not self.enabled:
-            return
-        fraction = min(max(float(fraction), 0.0), 1.0)
-        self._fraction = fraction
-        now = time.monotonic()
-        if now - self.start < self.delay or (now - self._last < 0.1 and fraction < 1.0):
-            return
-        self._last = now
-        self.shown = True
-        filled = int(round(self.width * fraction))
-        bar = "#" * filled + "-" * (self.width - filled)
-        self.stream.write(f"\r{self.label} [{bar}] {100 * fraction:5.1f}%  {now - self.start:6.1f} s")
-        self.stream.flush()
-
-    def close(self) -> None:
-        if self.shown:
-            self.stream.write("\n")
-            self.stream.flush()
-            self.shown = False
-
-    def __enter__(self) -> "ProgressBar":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
+        super().__init__(label, stream=stream, delay=delay, width=width, quiet=quiet, tty_only=True)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -103,19 +70,24 @@ def _summary(scenario, sol) -> List[str]:
     return [
         f"{head}N = {n}, method {sol.method}, t_end = {scenario.t_end:g} s, {len(sol.t)} samples",
         f"  {steps}, {stats.evaluations} evaluations, wall time {stats.wall_time:.3g} s",
-        f"  max energy error {stats.energy_error:.3g} (|E - E0 - W| / |E0|)",
-        _trust_line(sol),
+        # The run's own measure (sol.stats.energy_error), never recomputed here.
+        f"  max energy error {stats.energy_error:.3g} (|E - E0 - W| / S; S: well depth + max kinetic energy)",
+        _trust_line(sol, scenario),
     ]
 
 
-def _trust_line(sol) -> str:
-    until = sol.trustworthy_until()
+def _trust_line(sol, scenario=None) -> str:
+    # An auxiliary estimate: it never blocks the results (sol.trustworthy says why it is missing).
+    until, how = sol.trustworthy()
     if until is None:
-        return "  trustworthy until: unknown (a Python torque function)"
+        torque = getattr(scenario, "torque", None)
+        if torque is not None and torque.convention == "joint":
+            how = f"not estimated under joint-motor torques (a {torque.kind} torque here)"
+        return f"  trustworthy until: unknown ({how})"
     if until == float("inf"):
         return "  trustworthy until: the end (no exponential divergence: regular motion)"
     note = "" if until >= sol.t[-1] else "; later samples are one of many possible motions"
-    return f"  trustworthy to 1e-2 rad until ~{until:.3g} s (largest Lyapunov exponent){note}"
+    return f"  trustworthy to 1e-2 rad until ~{until:.3g} s ({how}){note}"
 
 
 class Terminated(KeyboardInterrupt):
@@ -160,7 +132,9 @@ def _run_scenario(args, scenario, outdir: Path) -> int:
     import multipendulum as mp
 
     if getattr(args, "t_end", None) is not None:
-        scenario = scenario.replace(t_end=args.t_end)
+        _check_positive("--t-end", args.t_end)
+        scenario = scenario.replace(t_end=args.t_end)  # checks the run's limits again
+    _check_outputs(args, scenario)
     path = getattr(args, "checkpoint", None)
     if path is None:
         if getattr(args, "checkpoint_every", None) is not None or getattr(args, "checkpoint_seconds", None) is not None:
@@ -182,13 +156,37 @@ def _run_scenario(args, scenario, outdir: Path) -> int:
     return _write_outputs(args, scenario, sol, outdir)
 
 
+def _check_positive(option: str, value: float) -> None:
+    import math
+
+    from multipendulum import InputError
+
+    if not math.isfinite(value):
+        raise InputError(f"{option} must be finite, got {value:g}")
+    if not value > 0:
+        raise InputError(f"{option} must be > 0, got {value:g}")
+
+
+#: How the scenario's output settings are named in messages from `run`, `demo` and `resume`.
+_OUTPUT_WORDS = {"format": "write .mp4 (output.animation; its frames are streamed, not kept), or run with "
+                           "--no-animation"}
+
+
+def _check_outputs(args, scenario) -> None:
+    """Refuse, before anything is simulated or written, an animation the scenario asks for
+    that would not fit (frames, pixels, memory): naming the scenario's keys."""
+    if scenario.outputs.animation and not args.no_animation:
+        scenario.check_animation(names=_OUTPUT_WORDS)
+
+
 def _write_outputs(args, scenario, sol, outdir: Path) -> int:
     """Print the run's summary and write its results, animation and plots into ``outdir``."""
-    from .animation import animate, frame_times
+    from .animation import animate, frame_count
     from .plotting import plot
     from .results import save_results
 
     outputs = scenario.outputs
+    _check_outputs(args, scenario)  # again, for a resumed run: before the results are written
     _say(args, *_summary(scenario, sol))
 
     results_name = outputs.results
@@ -204,7 +202,7 @@ def _write_outputs(args, scenario, sol, outdir: Path) -> int:
                 speed=outputs.speed, dpi=outputs.dpi, progress=bar,
                 title=f"{scenario.name} ({sol.method})" if scenario.name else None,
             )
-        frames = len(frame_times(sol.t[0], sol.t[-1], outputs.fps, outputs.speed))
+        frames = int(frame_count(sol.t[0], sol.t[-1], outputs.fps, outputs.speed))
         _say(args, f"wrote {path} ({frames} frames)")
     if outputs.plots and not args.no_plots:
         for kind in outputs.plots:
@@ -272,7 +270,8 @@ def _add_resume(sub, common) -> None:
 
 def _cmd_resume(args) -> int:
     import multipendulum as mp
-    from .checkpoint import load_checkpoint, resume
+    from ._simulate import resume
+    from .checkpoint import load_checkpoint
     from .results import scenario_from_metadata
 
     archive = load_checkpoint(args.archive)
@@ -286,6 +285,7 @@ def _cmd_resume(args) -> int:
     args.format = args.format or cli.get("format")
     args.no_animation = args.no_animation or bool(cli.get("no_animation"))
     args.no_plots = args.no_plots or bool(cli.get("no_plots"))
+    _check_outputs(args, scenario)
     _say(args, f"resuming {args.archive} at t = {archive.t:g} s of {archive.t_end:g} s")
     try:
         with ProgressBar("simulate", quiet=args.quiet) as bar, _sigterm_stops():
@@ -313,8 +313,13 @@ def _add_animate(sub, common) -> None:
     p.set_defaults(handler=_cmd_animate)
 
 
+#: How `animate`'s messages name its settings.
+_ANIMATE_WORDS = {"fps": "--fps", "speed": "--speed", "dpi": "--dpi", "trail": "--trail",
+                  "duration": "a shorter run", "format": "write .mp4 (-o OUT.mp4; its frames are streamed, not kept)"}
+
+
 def _cmd_animate(args) -> int:
-    from .animation import animate, frame_times
+    from .animation import animate, frame_count
     from .results import load_results
     from .scenario import Outputs
 
@@ -333,8 +338,9 @@ def _cmd_animate(args) -> int:
             results, args.output, fps=fps,
             trail=args.trail if args.trail is not None else outputs.trail,
             speed=speed, dpi=args.dpi if args.dpi is not None else outputs.dpi, progress=bar,
+            names=_ANIMATE_WORDS,
         )
-    frames = len(frame_times(results.t[0], results.t[-1], fps, speed))
+    frames = int(frame_count(results.t[0], results.t[-1], fps, speed))
     _say(args, f"wrote {path} ({frames} frames)")
     return 0
 
@@ -504,6 +510,60 @@ def _fractal_counts(fm, rows: int = 256):
     return flipped, never, forbidden
 
 
+#: The most rk4 steps (initial states x steps each) a flip-time map may take on this machine:
+#: about an hour or more on a few cores; beyond it, --dask spreads the work over a cluster.
+MAX_LOCAL_MAP_STEPS = 1e12
+#: Initial states per block when a map is computed here: enough for the kernel's SIMD lanes and
+#: threads, few enough for the progress bar to move (and Ctrl-C to be heard) often.
+_BLOCK_STATES = 16384
+
+
+def _fractal_budget(args, n: int, t_max: float) -> None:
+    """Refuse, before any grid exists, a map that would not fit in memory or take too long."""
+    import math
+
+    import multipendulum as mp
+
+    size = args.size
+    cells = float(size) * size
+    if args.zarr is None:
+        # The map's times (8 bytes) and flags (1) for every state, and one block's initial
+        # states, energies and times while it is computed.
+        block = max(_BLOCK_STATES, size) * (2 * n + 3) * 8.0
+        mp._core.check_memory(cells * 9.0 + block, f"a flip-time map of {size} x {size} initial states",
+                              "use a smaller --size, or --zarr PATH to write the map chunk by chunk "
+                              "(with --dask ADDRESS to compute it on a cluster)")
+    if args.dask is None and math.isfinite(t_max) and t_max > 0 and math.isfinite(args.dt) and args.dt > 0:
+        steps = math.ceil(t_max / args.dt)
+        work = cells * steps
+        if work > MAX_LOCAL_MAP_STEPS:
+            raise mp.InputError(
+                f"a flip-time map of {size} x {size} initial states with up to t_max / dt = {steps:.4g} steps "
+                f"each is up to {work:.3g} rk4 steps, more than the {MAX_LOCAL_MAP_STEPS:.0e} one machine is "
+                "given (hours of work); use a smaller --size, a shorter --t-max or a larger --dt, or spread it "
+                "over a cluster with --dask ADDRESS")
+
+
+def _flip_map_in_blocks(chain, x, y, report, **kwargs):
+    """``mp.flip_map`` computed a block of rows at a time, reporting the fraction of initial
+    states done after each block: the same map, bit for bit (each state's flip time does not
+    depend on what else is computed with it)."""
+    import numpy as np
+
+    import multipendulum as mp
+
+    rows = max(1, min(y.size, -(-max(_BLOCK_STATES, x.size * y.size // 100) // x.size)))
+    done = Steps(report, total=x.size * y.size)
+    times, allowed, threshold = [], [], None
+    for r in range(0, y.size, rows):
+        part = mp.flip_map(chain, x, y[r:r + rows], **kwargs)
+        times.append(part.times)
+        allowed.append(part.allowed)
+        threshold = part.threshold
+        done.add(part.times.size)
+    return mp.FlipMap(x, y, np.concatenate(times), np.concatenate(allowed), float(kwargs["t_max"]), threshold)
+
+
 def _cmd_fractal(args) -> int:
     import numpy as np
 
@@ -529,6 +589,10 @@ def _cmd_fractal(args) -> int:
         raise mp.InputError(f"the map is written as PNG: -o must end in .png, got {str(args.output)!r}")
     t_max = scenario.t_end if args.t_max is None else args.t_max
     link = None if args.link is None else args.link - 1
+    _fractal_budget(args, n, t_max)
+    from .fractal import check_picture
+
+    check_picture(args.dpi, names={"dpi": "--dpi"})
 
     def axis(kind, rng):
         lo, hi = rng if rng is not None else ((-180.0, 180.0) if kind == "theta" else (-720.0, 720.0))
@@ -541,20 +605,24 @@ def _cmd_fractal(args) -> int:
     vary = (kx, ix, ky, iy)
     kwargs = dict(t_max=t_max, dt=args.dt, vary=vary, base_theta=scenario.theta0, base_omega=scenario.omega0,
                   link=link)
+    # Arguments checked on no states, so that a bad one fails here and not in the first block.
+    mp.flip_times(chain, np.zeros((0, n)), t_max=t_max, dt=args.dt, link=link)
     title = scenario.name or args.scenario.stem
     _say(args, f"{title}: flip-time map of {args.size} x {args.size} initial states, N = {n}, "
                f"t_max = {t_max:g} s, dt = {args.dt:g} s")
     if scenario.torque is not None:
         _say(args, "  note: the scenario's torque is not applied; the map is of the free chain")
     start = time.perf_counter()
-    if args.dask is not None or args.zarr is not None or args.chunks is not None:
-        try:
-            fm = mp.sweep_flip_map(chain, x, y, chunks=args.chunks, scheduler=args.dask,
-                                   zarr=args.zarr, **kwargs)
-        except ImportError as exc:
-            return _error(str(exc))
-    else:
-        fm = mp.flip_map(chain, x, y, **kwargs)
+    with ProgressBar("flip map", quiet=args.quiet) as bar:
+        if args.dask is not None or args.zarr is not None or args.chunks is not None:
+            try:
+                fm = mp.sweep_flip_map(chain, x, y, chunks=args.chunks, scheduler=args.dask,
+                                       zarr=args.zarr, progress=bar, **kwargs)
+            except ImportError as exc:
+                return _error(str(exc))
+        else:
+            fm = _flip_map_in_blocks(chain, x, y, bar, **kwargs)
+        bar(1.0)
     wall = time.perf_counter() - start
     total = args.size * args.size
     flipped, never, forbidden = _fractal_counts(fm)
