@@ -133,7 +133,8 @@ def _run_scenario(args, scenario, outdir: Path) -> int:
 
     if getattr(args, "t_end", None) is not None:
         _check_positive("--t-end", args.t_end)
-        scenario = scenario.replace(t_end=args.t_end)  # checks the run's limits again
+        scenario = scenario.replace(t_end=args.t_end)
+    scenario.check_limits()  # the samples and steps of the run, before anything is made
     _check_outputs(args, scenario)
     path = getattr(args, "checkpoint", None)
     if path is None:

@@ -214,7 +214,8 @@ class Scenario:
         """Refuse, before anything is allocated or run, a scenario whose run would not fit: a
         fixed-step run longer than ``max_steps``, or more output samples than the memory the
         core allows (``t_end / sample_dt`` rows of ``5 N + 6`` numbers). The messages name the
-        file and the keys to change. Called when a scenario is read and after :meth:`replace`."""
+        file and the keys to change. :meth:`t_eval` (so :meth:`run`) checks it first; the command
+        line calls it before anything else."""
         steps_limit = _max_steps()
         if self.dt is not None and self.method in _FIXED_STEP:
             steps = self.t_end / self.dt
@@ -301,9 +302,7 @@ class Scenario:
                 overrides[key] = value
         if "t_end" in changes:
             _positive("simulation.t_end", changes["t_end"], self.path)
-        changed = dataclasses.replace(self, overrides=overrides, **changes)
-        changed.check_limits()
-        return changed
+        return dataclasses.replace(self, overrides=overrides, **changes)
 
     def metadata(self) -> Dict[str, Any]:
         """JSON-ready description for results files: enough to rerun the scenario."""
@@ -391,11 +390,11 @@ def loads_scenario(
         raise ScenarioError("not a usable TOML file: arrays or tables nested too deeply", path=path) from None
     reader = _Reader(path, Path(base_dir) if base_dir is not None else None, files)
     scenario = reader.scenario(raw, text)
-    # Build what the core will be given, so its own checks fail now rather than mid-run, and
-    # refuse a run that would not fit before anyone starts it.
+    # Build what the core will be given, so its own checks fail now rather than mid-run. (The
+    # run's own limits, check_limits, are checked by what runs it: the viewer and flip maps
+    # take a scenario's chain without storing its samples.)
     scenario.build_chain()
     scenario.build_torque()
-    scenario.check_limits()
     return scenario
 
 
