@@ -33,5 +33,5 @@ pub use integrators::{Facts, Method};
 pub use model::Chain;
 pub use run::events::{Condition, EventFn, EventSpec};
 pub use run::live::Stepper;
-pub use run::{simulate, simulate_batch, simulate_from, Checkpoint, Checkpoints, Settings, Start, Stats, Trajectory};
+pub use run::{simulate, simulate_batch, simulate_each, simulate_from, Checkpoint, Checkpoints, Settings, Start, Stats, Trajectory};
 pub use watch::Watch;

@@ -21,13 +21,6 @@ pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     Ok(())
 }
 
-fn rows(name: &str, len: usize, n: usize) -> PyResult<usize> {
-    if len % n != 0 || len == 0 {
-        return Err(InputError::new_err(format!("{name} must have shape (..., {n}), got {len} numbers")));
-    }
-    Ok(len / n)
-}
-
 struct Trajectories(Vec<core::Trajectory>);
 
 /// The run's outputs as a dict of flat arrays (Python reshapes): t, theta, omega, p, energy,
@@ -207,7 +200,7 @@ fn simulate<'py>(
         events: events.unwrap_or_default().iter().map(|e| event_spec(py, e, &event_errors)).collect(),
     };
     let (theta0, omega0) = (slice("theta0", &theta0)?, slice("omega0", &omega0)?);
-    let b = rows("theta0", theta0.len(), n)?;
+    let b = core::dynamics::rows::count("theta0", theta0.len(), n).map_err(err)?;
     let slot = RefCell::new(None);
     let src = crate::torque::torque(py, n, torque.as_deref(), &slot)?;
     let resume = resume.as_deref().map(core::Checkpoint::from_bytes).transpose().map_err(err)?;
@@ -285,37 +278,25 @@ fn simulate<'py>(
             .map(|t| Trajectories(vec![t]))
         }
         mut src => {
-            // The torque function needs the GIL: the rows in turn, here; Ctrl-C and progress
-            // are checked now and then between steps.
+            // The torque function needs the GIL: the rows in turn, here, with Ctrl-C and
+            // progress checked now and then (at most ten times a second).
             let mut last = Instant::now();
             let mut pending: Option<PyErr> = None;
-            let mut out = Vec::with_capacity(b);
-            let mut res = Ok(());
-            for i in 0..b {
-                let r = i * n..(i + 1) * n;
-                let mut monitor = |t: f64| {
-                    if last.elapsed() < Duration::from_millis(100) {
-                        return Ok(());
-                    }
-                    last = Instant::now();
-                    let fraction = (i as f64 + t / t_end) / b as f64;
-                    py.check_signals().and_then(|()| progress.map_or(Ok(()), |cb| cb.call1(py, (fraction,)).map(drop))).map_err(|e| {
-                        pending = Some(e);
-                        Error::Interrupted { t }
-                    })
-                };
-                match core::simulate(c, &theta0[r.clone()], &omega0[r], t_end, &settings, &mut src, &mut monitor) {
-                    Ok(t) => out.push(t),
-                    Err(e) => {
-                        res = Err(e);
-                        break;
-                    }
+            let mut monitor = |fraction: f64, t: f64| {
+                if last.elapsed() < Duration::from_millis(100) {
+                    return Ok(());
                 }
-            }
+                last = Instant::now();
+                py.check_signals().and_then(|()| progress.map_or(Ok(()), |cb| cb.call1(py, (fraction,)).map(drop))).map_err(|e| {
+                    pending = Some(e);
+                    Error::Interrupted { t }
+                })
+            };
+            let r = core::simulate_each(c, theta0, omega0, t_end, &settings, &mut src, &mut monitor);
             if let Some(p) = pending {
                 return Err(p);
             }
-            res.map(|_| Trajectories(out))
+            r.map(Trajectories)
         }
     };
     let trs = result.map_err(fail)?;

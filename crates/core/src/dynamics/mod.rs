@@ -11,6 +11,7 @@
 //! Hamiltonian form: `theta_dot = A^-1 p`,
 //! `p_dot_a = tau_a - g h_a sin(theta_a) - omega_a sum_b K_ab sin(theta_a - theta_b) omega_b`.
 pub mod reference;
+pub mod rows;
 pub mod system;
 pub mod torque;
 

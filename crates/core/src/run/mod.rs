@@ -8,4 +8,4 @@ pub mod live;
 pub mod simulate;
 
 pub use driver::{Config, Run, State};
-pub use simulate::{defaults, simulate, simulate_batch, simulate_from, Checkpoint, Checkpoints, Monitor, Settings, Start, Stats, Trajectory};
+pub use simulate::{defaults, simulate, simulate_batch, simulate_each, simulate_from, Checkpoint, Checkpoints, Monitor, Settings, Start, Stats, Trajectory};

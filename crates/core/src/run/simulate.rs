@@ -601,6 +601,37 @@ fn finish(chain: &Chain, form: Form, work: bool, initial: &[f64], rec: Recorder,
     tr
 }
 
+/// Run a batch of initial states one after another with one torque source (a torque that
+/// cannot cross threads, such as a Python function): results in input order, each identical to
+/// its single run. `monitor(fraction, t)` is called as in [`simulate`], with the fraction of the
+/// whole batch done; its error stops the batch.
+pub fn simulate_each<T: TorqueSource>(
+    chain: &Chain,
+    theta0: &[f64],
+    omega0: &[f64],
+    t_end: f64,
+    settings: &Settings,
+    torque: &mut T,
+    monitor: &mut dyn FnMut(f64, f64) -> Result<()>,
+) -> Result<Vec<Trajectory>> {
+    let n = chain.n();
+    if theta0.len() != omega0.len() || theta0.len() % n != 0 || theta0.is_empty() {
+        return Err(Error::input(format!(
+            "theta0 and omega0 must both have shape (B, {n}), got {} and {} numbers",
+            theta0.len(),
+            omega0.len()
+        )));
+    }
+    let b = theta0.len() / n;
+    (0..b)
+        .map(|i| {
+            let range = i * n..(i + 1) * n;
+            let mut row_monitor = |t: f64| monitor((i as f64 + t / t_end) / b as f64, t);
+            simulate(chain, &theta0[range.clone()], &omega0[range], t_end, settings, &mut *torque, &mut row_monitor)
+        })
+        .collect()
+}
+
 /// Run a batch of initial states in parallel (rayon; one after another without the `parallel`
 /// feature); results in input order, each identical to its single run whatever the number of
 /// threads. Rows of `theta0`/`omega0` are states. Each finished trajectory counts a unit of
