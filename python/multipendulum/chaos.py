@@ -15,7 +15,7 @@ from ._progress import Progress, reporter
 from ._progress import check as _check_progress
 from ._torque import TorqueLike, core_torque, normalise_torque
 from ._lyapunov import LyapunovResult, _link, lyapunov, trustworthy_until
-from ._simulate import Crossing, EventRecord, Flip, simulate
+from ._simulate import DEFAULTS, Crossing, EventRecord, Flip, simulate
 from .errors import InputError
 
 if TYPE_CHECKING:
@@ -148,7 +148,7 @@ class PoincareSection:
 
 
 def poincare(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: float, through: int = 0,
-             record: int = 1, rtol: float = 1e-10, atol: float = 1e-12) -> List[PoincareSection]:
+             record: int = 1, rtol: float = DEFAULTS["rtol"], atol: float = DEFAULTS["atol"]) -> List[PoincareSection]:
     """Poincaré sections: ``(theta_record, p_record)`` whenever ``theta_through`` crosses 0 upward,
     located by root finding on dop853's dense output. ``theta0``/``omega0`` may carry a batch axis
     (several energies), run in parallel; returns a list of :class:`PoincareSection`."""
@@ -214,8 +214,9 @@ class EnsembleResult:
     first_flip: npt.NDArray[np.float64]
 
 
-def ensemble(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: float, method: str = "dop853",
-             dt: Optional[float] = None, rtol: float = 1e-10, atol: float = 1e-12, torque: Optional[TorqueLike] = None,
+def ensemble(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: float, method: str = DEFAULTS["method"],
+             dt: Optional[float] = None, rtol: float = DEFAULTS["rtol"], atol: float = DEFAULTS["atol"],
+             torque: Optional[TorqueLike] = None,
              joint_torque: Optional[TorqueLike] = None, progress: Progress = None) -> EnsembleResult:
     """Run B trajectories (rows of ``theta0``, ``omega0``: (B, N)) in parallel in the Rust core
     and keep only their final states and per-trajectory reductions: memory O(B N), not
