@@ -40,9 +40,9 @@ import math
 import sys
 import threading
 import time
-from typing import Any, Callable, Iterator, Optional, TextIO, Union
+from typing import Any, Callable, Iterator, Optional, Protocol, TextIO, Union
 
-__all__ = ["check", "reporter", "make", "Steps", "scaled", "TextBar", "format_seconds", "Report"]
+__all__ = ["check", "reporter", "make", "Steps", "scaled", "TextBar", "format_seconds", "Report", "Reporter"]
 
 #: What a progress callback looks like: ``report(fraction)`` with a fraction in [0, 1].
 Report = Callable[[float], Any]
@@ -122,14 +122,14 @@ class TextBar:
     def __enter__(self) -> "TextBar":
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
 
 class _TqdmBar:
     """tqdm's bar driven by fractions: 100 units, so it shows percent, elapsed and remaining."""
 
-    def __init__(self, label: str, tqdm_class):
+    def __init__(self, label: str, tqdm_class: Any):
         self.bar = tqdm_class(total=100, desc=label or None, unit="%", leave=True,
                               bar_format="{l_bar}{bar}| {n:.0f}/{total_fmt}% [{elapsed}<{remaining}]")
         self._n = 0.0
@@ -142,6 +142,14 @@ class _TqdmBar:
 
     def close(self) -> None:
         self.bar.close()
+
+
+class Reporter(Protocol):
+    """What :func:`make` returns: called with a fraction in [0, 1]; ``close()`` when done."""
+
+    def __call__(self, fraction: float) -> Any: ...
+
+    def close(self) -> None: ...
 
 
 class _Callback:
@@ -166,7 +174,7 @@ def check(progress: Any, name: str = "progress") -> None:
     raise InputError(f"{name} must be True, False, None or a callable f(fraction), got {type(progress).__name__}")
 
 
-def _tqdm():
+def _tqdm() -> Any:
     try:
         from tqdm.auto import tqdm
     except ImportError:
@@ -174,7 +182,7 @@ def _tqdm():
     return tqdm
 
 
-def make(progress: Any, label: str = "", stream: Optional[TextIO] = None):
+def make(progress: Any, label: str = "", stream: Optional[TextIO] = None) -> Optional["Reporter"]:
     """The reporter for ``progress`` (see the module docstring), or None for no reporting. The
     result is callable with a fraction and has ``close()``. ``progress=True`` gives a tqdm bar
     when tqdm is installed, else a :class:`TextBar` on ``stream`` (default stderr), shown
