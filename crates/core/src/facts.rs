@@ -78,7 +78,7 @@ pub fn forms() -> Vec<&'static str> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::integrators::AnyIntegrator;
+    use crate::integrators::{AnyIntegrator, Integrator};
 
     #[test]
     fn each_methods_facts_are_its_integrators() {

@@ -71,7 +71,7 @@ impl Dop853 {
     }
 
     /// Hairer's initial step size guess (Solving ODEs I, II.4), after `start`.
-    pub fn initial_step<S: OdeSystem>(&mut self, sys: &mut S, t: f64, y: &[f64], span: f64) -> Result<f64> {
+    pub fn first_step<S: OdeSystem>(&mut self, sys: &mut S, t: f64, y: &[f64], span: f64) -> Result<f64> {
         let d = self.dim;
         let scale = |m: usize| self.atol + y[m].abs() * self.rtol;
         let rms = |v: &dyn Fn(usize) -> f64| ((0..d).map(|m| v(m).powi(2)).sum::<f64>() / d as f64).sqrt();
@@ -250,5 +250,24 @@ impl Integrator for Dop853 {
         self.fsal_pending = false;
         self.dense_ready = false;
         Ok(())
+    }
+
+    fn save_any(&self) -> super::AnyMemory {
+        super::AnyMemory::Dop853(self.save())
+    }
+
+    fn restore_any(&mut self, memory: super::AnyMemory) -> Result<()> {
+        match memory {
+            super::AnyMemory::Dop853(m) => self.restore(m),
+            _ => Err(super::other_method("dop853")),
+        }
+    }
+
+    fn name(&self) -> &'static str {
+        "dop853"
+    }
+
+    fn initial_step<S: OdeSystem>(&mut self, sys: &mut S, t: f64, y: &[f64], span: f64) -> Result<Option<f64>> {
+        self.first_step(sys, t, y, span).map(Some)
     }
 }

@@ -218,4 +218,19 @@ impl Integrator for Gauss {
         self.last_h = Some(h);
         Ok(None)
     }
+
+    fn save_any(&self) -> super::AnyMemory {
+        super::AnyMemory::Gauss(self.save())
+    }
+
+    fn restore_any(&mut self, memory: super::AnyMemory) -> Result<()> {
+        match memory {
+            super::AnyMemory::Gauss(m) => self.restore(m),
+            _ => Err(super::other_method(Gauss::name(self))),
+        }
+    }
+
+    fn name(&self) -> &'static str {
+        Gauss::name(self)
+    }
 }

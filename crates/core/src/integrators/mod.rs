@@ -75,6 +75,26 @@ pub trait Integrator {
 
     /// Continue from a saved memory; refuses one of another size.
     fn restore(&mut self, memory: Self::Memory) -> Result<()>;
+
+    /// The memory as a checkpoint holds it, whatever the method.
+    fn save_any(&self) -> AnyMemory;
+
+    /// [`Integrator::restore`] from a checkpoint's memory; refuses another method's.
+    fn restore_any(&mut self, memory: AnyMemory) -> Result<()>;
+
+    /// The method's name (for messages).
+    fn name(&self) -> &'static str;
+
+    /// The first step to try from `(t, y)` towards a span of `span`, after
+    /// [`Integrator::start`], for methods that choose their own steps (`None` for the others).
+    fn initial_step<S: OdeSystem>(&mut self, _sys: &mut S, _t: f64, _y: &[f64], _span: f64) -> Result<Option<f64>> {
+        Ok(None)
+    }
+}
+
+/// A checkpoint's memory of another method than the run's.
+pub(crate) fn other_method(name: &str) -> Error {
+    Error::input(format!("the checkpoint's integrator state is not that of this method ({name})"))
 }
 
 /// An integrator's memory refused on restore.
@@ -190,58 +210,64 @@ impl AnyIntegrator {
             Method::Dop853 => AnyIntegrator::Dop853(Dop853::new(dim, rtol, atol)),
         }
     }
+}
 
-    pub fn facts(&self) -> Facts {
+/// The method chosen at run time: each call dispatches to the monomorphised integrator. Hot
+/// loops take the integrator's own type instead ([`crate::run::simulate`] does).
+impl Integrator for AnyIntegrator {
+    type Memory = AnyMemory;
+
+    fn facts(&self) -> Facts {
         each!(self, i => i.facts())
     }
 
-    pub fn start<S: OdeSystem>(&mut self, sys: &mut S, t: f64, y: &[f64]) -> Result<()> {
+    fn start<S: OdeSystem>(&mut self, sys: &mut S, t: f64, y: &[f64]) -> Result<()> {
         each!(self, i => i.start(sys, t, y))
     }
 
     #[inline(always)]
-    pub fn attempt<S: OdeSystem>(&mut self, sys: &mut S, t: f64, y: &[f64], h: f64, y_new: &mut [f64]) -> Result<Option<f64>> {
+    fn attempt<S: OdeSystem>(&mut self, sys: &mut S, t: f64, y: &[f64], h: f64, y_new: &mut [f64]) -> Result<Option<f64>> {
         each!(self, i => i.attempt(sys, t, y, h, y_new))
     }
 
-    pub fn accept(&mut self) {
+    fn accept(&mut self) {
         each!(self, i => i.accept())
     }
 
-    pub fn dense<S: OdeSystem>(&mut self, sys: &mut S, t: f64, y: &[f64], h: f64, t_new: f64, y_new: &[f64]) -> Result<()> {
+    fn dense<S: OdeSystem>(&mut self, sys: &mut S, t: f64, y: &[f64], h: f64, t_new: f64, y_new: &[f64]) -> Result<()> {
         each!(self, i => i.dense(sys, t, y, h, t_new, y_new))
     }
 
-    pub fn interpolate(&self, y: &[f64], y_new: &[f64], h: f64, x: f64, out: &mut [f64]) {
+    fn interpolate(&self, y: &[f64], y_new: &[f64], h: f64, x: f64, out: &mut [f64]) {
         each!(self, i => i.interpolate(y, y_new, h, x, out))
     }
 
-    pub fn iterations(&self) -> u64 {
+    fn iterations(&self) -> u64 {
         each!(self, i => i.iterations())
     }
 
-    pub fn save(&self) -> AnyMemory {
-        match self {
-            AnyIntegrator::Rk4(i) => AnyMemory::Rk4(i.save()),
-            AnyIntegrator::Gauss(i) => AnyMemory::Gauss(i.save()),
-            AnyIntegrator::Dop853(i) => AnyMemory::Dop853(i.save()),
-        }
+    fn save(&self) -> AnyMemory {
+        self.save_any()
     }
 
-    pub fn restore(&mut self, memory: AnyMemory) -> Result<()> {
-        match (self, memory) {
-            (AnyIntegrator::Rk4(i), AnyMemory::Rk4(m)) => i.restore(m),
-            (AnyIntegrator::Gauss(i), AnyMemory::Gauss(m)) => i.restore(m),
-            (AnyIntegrator::Dop853(i), AnyMemory::Dop853(m)) => i.restore(m),
-            (i, _) => Err(Error::input(format!(
-                "the checkpoint's integrator state is not that of this method ({})",
-                match i {
-                    AnyIntegrator::Rk4(_) => "rk4",
-                    AnyIntegrator::Gauss(g) => g.name(),
-                    AnyIntegrator::Dop853(_) => "dop853",
-                }
-            ))),
-        }
+    fn restore(&mut self, memory: AnyMemory) -> Result<()> {
+        self.restore_any(memory)
+    }
+
+    fn save_any(&self) -> AnyMemory {
+        each!(self, i => i.save_any())
+    }
+
+    fn restore_any(&mut self, memory: AnyMemory) -> Result<()> {
+        each!(self, i => i.restore_any(memory))
+    }
+
+    fn name(&self) -> &'static str {
+        each!(self, i => i.name())
+    }
+
+    fn initial_step<S: OdeSystem>(&mut self, sys: &mut S, t: f64, y: &[f64], span: f64) -> Result<Option<f64>> {
+        each!(self, i => i.initial_step(sys, t, y, span))
     }
 }
 

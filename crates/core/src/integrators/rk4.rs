@@ -72,12 +72,29 @@ impl Integrator for Rk4 {
     fn restore(&mut self, memory: Slope) -> Result<()> {
         self.dense.restore(memory, "rk4")
     }
+
+    fn save_any(&self) -> super::AnyMemory {
+        super::AnyMemory::Rk4(self.save())
+    }
+
+    fn restore_any(&mut self, memory: super::AnyMemory) -> Result<()> {
+        match memory {
+            super::AnyMemory::Rk4(m) => self.restore(m),
+            _ => Err(super::other_method("rk4")),
+        }
+    }
+
+    fn name(&self) -> &'static str {
+        "rk4"
+    }
 }
 
 /// The four stages and the weighted sum, in buffers `[k1, k2, k3, k4, tmp]` of `y`'s length.
 #[inline(always)]
 fn stages<S: OdeSystem, B: AsMut<[f64]>>(sys: &mut S, t: f64, y: &[f64], h: f64, y_new: &mut [f64], buf: &mut [B; 5]) -> Result<()> {
     let [k1, k2, k3, k4, tmp] = buf.each_mut().map(|b| &mut b.as_mut()[..y.len()]);
+    // Of y's length too, so the loops below see one length (constant for the double pendulum).
+    let y_new = &mut y_new[..y.len()];
     let half = 0.5 * h;
     sys.rhs(t, y, k1)?;
     for ((o, y), k) in tmp.iter_mut().zip(y.iter()).zip(k1.iter()) {

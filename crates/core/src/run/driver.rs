@@ -16,7 +16,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::dynamics::system::{OdeSystem, NON_FINITE};
 use crate::error::{Error, Result};
-use crate::integrators::{AnyIntegrator, AnyMemory, Controller, Decision, Method};
+use crate::integrators::{AnyIntegrator, AnyMemory, Controller, Decision, Integrator, Method};
 
 /// How a run steps.
 #[derive(Debug, Clone, PartialEq)]
@@ -80,10 +80,12 @@ fn min_step(t: f64) -> f64 {
     10.0 * (t.abs() * f64::EPSILON).max(f64::MIN_POSITIVE)
 }
 
-pub struct Run<S> {
+/// `I`: the integrator, its own type in hot loops (monomorphised), or [`AnyIntegrator`] chosen
+/// at run time.
+pub struct Run<S, I = AnyIntegrator> {
     sys: Counted<S>,
     method: Method,
-    integ: AnyIntegrator,
+    integ: I,
     /// Step-size control (dop853 with `adaptive`).
     control: Option<Controller>,
     dt: f64,
@@ -102,24 +104,38 @@ pub struct Run<S> {
     iterations_before: u64,
 }
 
-impl<S: OdeSystem> Run<S> {
-    /// Start at `t = 0` from the raw state `y0`.
+impl<S: OdeSystem> Run<S, AnyIntegrator> {
+    /// Start at `t = 0` from the raw state `y0`, with the config's method chosen at run time.
     pub fn new(sys: S, y0: Vec<f64>, config: &Config) -> Result<Self> {
-        let mut run = Self::build(sys, y0, config)?;
-        let Run { sys, integ, state, .. } = &mut run;
-        integ.start(sys, 0.0, &state.y)?;
-        if let AnyIntegrator::Dop853(rk) = integ {
-            state.h = match config.dt {
-                Some(dt) => config.t_end.map_or(dt, |e| dt.min(e)),
-                None => rk.initial_step(sys, 0.0, &state.y, config.t_end.unwrap_or(f64::INFINITY))?,
-            };
-        }
-        run.state.memory = run.integ.save();
-        Ok(run)
+        let integ = AnyIntegrator::new(config.method, y0.len(), config.rtol, config.atol);
+        Self::start_with(sys, y0, config, integ)
     }
 
     /// Continue from a saved [`State`] of the same run (same system and config).
     pub fn resume(sys: S, state: State, config: &Config) -> Result<Self> {
+        let integ = AnyIntegrator::new(config.method, state.y.len(), config.rtol, config.atol);
+        Self::resume_with(sys, state, config, integ)
+    }
+}
+
+impl<S: OdeSystem, I: Integrator> Run<S, I> {
+    /// Start at `t = 0` from the raw state `y0` with `integ`, the integrator of `config.method`.
+    pub fn start_with(sys: S, y0: Vec<f64>, config: &Config, integ: I) -> Result<Self> {
+        let mut run = Self::build(sys, y0, config, integ)?;
+        let Run { sys, integ, state, .. } = &mut run;
+        integ.start(sys, 0.0, &state.y)?;
+        if config.method.adaptive() {
+            state.h = match config.dt {
+                Some(dt) => config.t_end.map_or(dt, |e| dt.min(e)),
+                None => integ.initial_step(sys, 0.0, &state.y, config.t_end.unwrap_or(f64::INFINITY))?.unwrap_or(f64::NAN),
+            };
+        }
+        run.state.memory = run.integ.save_any();
+        Ok(run)
+    }
+
+    /// Continue from a saved [`State`] of the same run (same system and config) with `integ`.
+    pub fn resume_with(sys: S, state: State, config: &Config, integ: I) -> Result<Self> {
         let bad = |what: String| Err(Error::input(format!("the checkpoint does not fit this run: {what}")));
         if state.y.len() != sys.dim() {
             return bad(format!("its state has {} values, this run's {}", state.y.len(), sys.dim()));
@@ -127,8 +143,8 @@ impl<S: OdeSystem> Run<S> {
         if !(state.y.iter().all(|v| v.is_finite()) && state.t.is_finite()) {
             return Err(Error::input("the checkpoint's state is not finite"));
         }
-        let mut run = Self::build(sys, state.y.clone(), config)?;
-        run.integ.restore(state.memory.clone())?;
+        let mut run = Self::build(sys, state.y.clone(), config, integ)?;
+        run.integ.restore_any(state.memory.clone())?;
         match run.method {
             Method::Dop853 => {
                 if !(state.h.is_finite() && state.h > 0.0) {
@@ -161,7 +177,7 @@ impl<S: OdeSystem> Run<S> {
         Ok(run)
     }
 
-    fn build(sys: S, y: Vec<f64>, config: &Config) -> Result<Self> {
+    fn build(sys: S, y: Vec<f64>, config: &Config, integ: I) -> Result<Self> {
         let method = config.method;
         let dim = y.len();
         if dim != sys.dim() {
@@ -172,8 +188,7 @@ impl<S: OdeSystem> Run<S> {
         if grid && !(dt.is_finite() && dt > 0.0) {
             return Err(Error::input(format!("method {} takes a fixed step: give dt", method.name())));
         }
-        let integ = AnyIntegrator::new(method, dim, config.rtol, config.atol);
-        let memory = integ.save();
+        let memory = integ.save_any();
         Ok(Run {
             sys: Counted { sys, n: 0 },
             method,
@@ -373,7 +388,7 @@ impl<S: OdeSystem> Run<S> {
 
     /// The driver's complete state (a checkpoint's core).
     pub fn save(&self) -> State {
-        State { memory: self.integ.save(), ..self.state.clone() }
+        State { memory: self.integ.save_any(), ..self.state.clone() }
     }
 
     pub fn t(&self) -> f64 {

@@ -11,7 +11,7 @@ use crate::dynamics::system::{ChainSystem, Form, OdeSystem};
 use crate::dynamics::torque::TorqueSource;
 use crate::dynamics::Workspace;
 use crate::error::{Error, Result};
-use crate::integrators::Method;
+use crate::integrators::{Dop853, Gauss, Integrator, Method, Rk4};
 use crate::model::Chain;
 use crate::par::*;
 use crate::watch::Watch;
@@ -387,7 +387,7 @@ pub fn simulate_from<T: TorqueSource>(
     settings: &Settings,
     torque: T,
     monitor: Monitor,
-    mut checkpoints: Option<&mut Checkpoints>,
+    checkpoints: Option<&mut Checkpoints>,
 ) -> Result<Trajectory> {
     if let Start::Initial { theta0, omega0 } = start {
         chain.check_state("theta0", theta0)?;
@@ -409,6 +409,34 @@ pub fn simulate_from<T: TorqueSource>(
         return Err(Error::input("checkpoints cannot be combined with events (the event tracker's state is not saved)"));
     }
     let sys = ChainSystem::new(chain, torque, form);
+    let (d, config) = (sys.dim(), settings.config(Some(t_end)));
+    // One monomorphised loop per method: the integrator's own type, not a dispatch per step.
+    match settings.method {
+        Method::Rk4 => drive(chain, start, t_end, settings, sys, Rk4::new(d), monitor, checkpoints, rows),
+        Method::Gauss4 => drive(chain, start, t_end, settings, sys, Gauss::new(2, d), monitor, checkpoints, rows),
+        Method::Gauss6 => drive(chain, start, t_end, settings, sys, Gauss::new(3, d), monitor, checkpoints, rows),
+        Method::Dop853 => {
+            let integ = Dop853::new(d, config.rtol, config.atol);
+            drive(chain, start, t_end, settings, sys, integ, monitor, checkpoints, rows)
+        }
+    }
+}
+
+/// The run loop of [`simulate_from`] for one integrator type.
+#[allow(clippy::too_many_arguments)]
+fn drive<T: TorqueSource, I: Integrator>(
+    chain: &Chain,
+    start: Start,
+    t_end: f64,
+    settings: &Settings,
+    sys: ChainSystem<&Chain, T>,
+    integ: I,
+    monitor: Monitor,
+    mut checkpoints: Option<&mut Checkpoints>,
+    rows: usize,
+) -> Result<Trajectory> {
+    let (n, form) = (chain.n(), sys.form());
+    let resume = matches!(start, Start::Resume(_));
     let tracks_work = sys.tracks_work();
     let d = sys.dim();
     let config = settings.config(Some(t_end));
@@ -425,7 +453,7 @@ pub fn simulate_from<T: TorqueSource>(
             tracker.start(0.0, &y)?;
             let rows = t_eval.map_or(if settings.method.adaptive() { 0 } else { rows }, <[f64]>::len);
             let rec = Recorder { t: Vec::with_capacity(rows), y: Vec::with_capacity(rows * d), ..Recorder::default() };
-            (Run::new(sys, y.clone(), &config)?, y, rec)
+            (Run::start_with(sys, y.clone(), &config, integ)?, y, rec)
         }
         Start::Resume(cp) => {
             if cp.run.y.len() != d {
@@ -445,10 +473,10 @@ pub fn simulate_from<T: TorqueSource>(
                 return bad(format!("next_out = {} beyond the {} output times", cp.next_out, t_eval.map_or(0, <[f64]>::len)));
             }
             let rec = Recorder { t: cp.out_t.clone(), y: cp.out_y.clone(), next_out: cp.next_out, stopped_at: None };
-            (Run::resume(sys, cp.run.clone(), &config)?, cp.initial.clone(), rec)
+            (Run::resume_with(sys, cp.run.clone(), &config, integ)?, cp.initial.clone(), rec)
         }
     };
-    if resume.is_none() && t_eval.is_none() {
+    if !resume && t_eval.is_none() {
         rec.push(0.0, run.y());
     }
     // Fixed-step methods take an output time within 1e-9 of a step of a grid point as that
