@@ -1,6 +1,7 @@
-"""The architecture holds: no import cycles in the package's API layers (import-linter's layers
-contract in pyproject.toml), and those modules reach the package root only for the compiled
-core; the compiled module matches its type stubs (mypy's stubtest)."""
+"""The architecture holds: no import cycles in the package (import-linter's layers contract in
+pyproject.toml, every module but the command line in it), and the modules below the command
+line reach the package root only for the compiled core; the compiled module matches its type
+stubs (mypy's stubtest)."""
 import re
 import shutil
 import subprocess
@@ -25,8 +26,9 @@ def test_the_layers_contract_holds():
 ROOT_IMPORT = re.compile(r"^\s*(import multipendulum(?!\._core as _core\b)|from multipendulum import|from \. import)", re.M)
 
 
-@pytest.mark.parametrize("module", ["sweeps", "chaos", "_simulate", "checkpoint", "_lyapunov", "_chain", "_torque",
-                                    "_convert", "_progress", "errors"])
+@pytest.mark.parametrize("module", ["viewer", "fractal", "modes", "animation", "plotting", "results", "scenario",
+                                    "sweeps", "chaos", "_simulate", "checkpoint", "_lyapunov", "_chain", "_torque",
+                                    "_convert", "_progress", "_files", "_frames", "errors"])
 def test_api_modules_import_only_the_core_from_the_package_root(module):
     code = "\n".join(line for line in (PKG / f"{module}.py").read_text().splitlines()
                      if not line.lstrip().startswith((">>>", "...", "#")))

@@ -43,7 +43,7 @@ def check_picture(dpi, size: float = 6.4, names=None) -> None:
     import math
     import numbers
 
-    from . import _core
+    import multipendulum._core as _core
 
     name = (names or {}).get("dpi", "dpi")
     if isinstance(dpi, bool) or not isinstance(dpi, numbers.Real) or not math.isfinite(dpi) or not dpi > 0:
@@ -212,7 +212,7 @@ def plot_flip_map(fm: FlipMap, path: Optional[PathLike] = None, chain: Optional[
     ax.set_title(subtitle + (f"; {fixed}" if fixed else ""), fontsize=8, color="0.3")
     if path is None:
         return fig
-    from .results import atomic_path
+    from ._files import atomic_path
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

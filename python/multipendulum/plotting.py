@@ -15,7 +15,8 @@ from typing import Any, List, Optional, Sequence, Union
 
 import numpy as np
 
-from .results import atomic_path, series
+from ._files import atomic_path
+from .results import series
 
 __all__ = ["plot", "PLOT_KINDS", "fit_title", "MAX_POINTS", "MAX_SIDE"]
 
@@ -71,7 +72,9 @@ def fit_title(text: str, width_inches: float, fontsize: float = 12.0, max_lines:
 
 
 def _check_dpi(dpi) -> None:
-    from multipendulum import InputError, _core
+    import multipendulum._core as _core
+
+    from .errors import InputError
 
     if isinstance(dpi, bool) or not isinstance(dpi, numbers.Real) or not math.isfinite(dpi) or not dpi > 0:
         raise InputError(f"dpi must be a finite number > 0, got {dpi!r}")
@@ -109,7 +112,7 @@ def plot(
     kinds = tuple(kinds)
     unknown = [k for k in kinds if k not in PLOT_KINDS]
     if unknown:
-        from multipendulum import InputError
+        from .errors import InputError
 
         raise InputError(f"unknown plot kind {unknown[0]!r}; expected one of {', '.join(PLOT_KINDS)}")
     _check_dpi(dpi)

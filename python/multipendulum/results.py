@@ -26,8 +26,10 @@ from typing import Any, Callable, Dict, Iterator, Optional, Union
 
 import numpy as np
 
-import multipendulum as _mp
-from multipendulum import InputError
+import multipendulum._core as _core
+
+from ._chain import Chain
+from .errors import InputError
 
 __all__ = ["Results", "save_results", "load_results", "atomic_path", "series", "check_single", "scenario_from_metadata",
            "FORMATS"]
@@ -85,7 +87,7 @@ class Results:
     def chain(self):
         """The :class:`multipendulum.Chain` rebuilt from the stored parameters."""
         if self._chain is None:
-            self._chain = _mp.Chain(
+            self._chain = Chain(
                 lengths=self.lengths, masses=self.masses, com=self.com, inertia=self.inertia, g=self.g
             )
         return self._chain
@@ -125,7 +127,7 @@ from ._files import atomic_path  # noqa: E402  (the one atomic writer, re-export
 
 
 def _version() -> str:
-    version = getattr(_mp, "__version__", None)
+    version = getattr(_core, "__version__", None)
     if version:
         return str(version)
     try:

@@ -48,8 +48,12 @@ try:  # Python >= 3.11
 except ModuleNotFoundError:  # pragma: no cover - Python 3.9/3.10
     import tomli as _toml  # type: ignore[no-redef]
 
-import multipendulum as _mp  # attributes are looked up at call time (this module is imported by it)
-from multipendulum import InputError
+import multipendulum._core as _core
+
+from ._chain import Chain
+from ._simulate import simulate
+from ._torque import Sinusoid, Table
+from .errors import InputError
 
 __all__ = [
     "Scenario",
@@ -66,8 +70,11 @@ PathLike = Union[str, "os.PathLike[str]"]
 
 #: Plot kinds known to :func:`multipendulum.plot`, in the order they are drawn.
 PLOT_KINDS = ("angles", "energy", "phase", "tip")
-_FIXED_STEP = ("rk4", "gauss4", "gauss6")
-_DEFAULT_METHODS = ("rk4", "dop853", "gauss4", "gauss6")
+# The core's facts, as it states them (never restated here): its methods, which need dt, the
+# forms each integrates, the defaults and the limits.
+_METHODS = tuple(_core.METHODS)
+_FIXED_STEP = tuple(m for m in _METHODS if _core.METHOD_INFO[m]["needs_dt"])
+_DEFAULTS = dict(_core.DEFAULTS)
 
 
 class ScenarioError(InputError):
@@ -111,14 +118,14 @@ class TorqueSpec:
         if self.kind == "constant":
             return np.asarray(p["value"], dtype=float)
         if self.kind == "sinusoid":
-            return _mp.Sinusoid(
+            return Sinusoid(
                 np.asarray(p["amplitude"], dtype=float),
                 np.asarray(p["frequency"], dtype=float),
                 phase=np.asarray(p["phase"], dtype=float),
                 offset=np.asarray(p["offset"], dtype=float),
             )
         if self.kind == "table":
-            return _mp.Table(
+            return Table(
                 np.asarray(p["t"], dtype=float),
                 np.asarray(p["values"], dtype=float),
                 kind=p["interpolation"],
@@ -157,10 +164,10 @@ class Scenario:
     theta0: np.ndarray
     omega0: np.ndarray
     t_end: float
-    method: str = "dop853"
+    method: str = _DEFAULTS["method"]
     dt: Optional[float] = None
-    rtol: float = 1e-10
-    atol: float = 1e-12
+    rtol: float = _DEFAULTS["rtol"]
+    atol: float = _DEFAULTS["atol"]
     sample_dt: float = 0.01
     form: Optional[str] = None
     torque: Optional[TorqueSpec] = None
@@ -180,8 +187,8 @@ class Scenario:
         c = self.chain
         try:
             if c["kind"] == "rods":
-                return _mp.Chain.rods(lengths=c["lengths"], masses=c["masses"], g=c["g"])
-            return _mp.Chain(
+                return Chain.rods(lengths=c["lengths"], masses=c["masses"], g=c["g"])
+            return Chain(
                 lengths=c["lengths"], masses=c["masses"], com=c.get("com"),
                 inertia=c.get("inertia"), g=c["g"],
             )
@@ -232,7 +239,7 @@ class Scenario:
                   f"the run ({self._t_end_words()})")
         try:
             # The sample times themselves, then each output row as the core counts it (5 N + 6 numbers).
-            _mp._core.check_memory(count * (8.0 + (5 * n + 6) * 8.0), what, advice)
+            _core.check_memory(count * (8.0 + (5 * n + 6) * 8.0), what, advice)
         except InputError as exc:
             raise ScenarioError(str(exc), key="simulation.sample_dt", path=self.path) from None
 
@@ -241,7 +248,7 @@ class Scenario:
         :func:`multipendulum.animation.plan`: frames, pixels, memory), naming the scenario's
         keys, or the caller's ``names`` for them (the command line's options). Returns
         ``(frames, side in pixels)``."""
-        from .animation import plan
+        from ._frames import plan
 
         out = self.outputs
         words = {"fps": "output.fps", "speed": "output.speed", "dpi": "output.dpi", "trail": "output.trail",
@@ -285,7 +292,7 @@ class Scenario:
         kwargs = self.simulate_kwargs()
         with reporter(progress, "simulate") as report:
             try:
-                return _mp.simulate(chain, self.theta0, self.omega0, self.t_end, progress=report, **kwargs)
+                return simulate(chain, self.theta0, self.omega0, self.t_end, progress=report, **kwargs)
             except ScenarioError:
                 raise
             except InputError as exc:
@@ -327,9 +334,9 @@ def default_scenario_path() -> Path:
 MAX_FILE_BYTES = 64 * 1024 * 1024
 #: The largest initial angle the core takes (|theta| <= 1e15 rad, where a step of 1e-15 rad is
 #: still resolved); a scenario in degrees is told its bound in degrees.
-MAX_ANGLE_RAD = 1e15
+MAX_ANGLE_RAD = _core.LIMITS["max_angle"]
 #: The smallest rtol dop853 takes (below it the error estimate is round-off).
-MIN_RTOL = 1e-15
+MIN_RTOL = _core.LIMITS["min_rtol"]
 #: The most links a scenario may ask for with a single number broadcast to every link (a
 #: million links is 0.1 s per rk4 step; more is a typo, not a simulation).
 MAX_LINKS = 1_000_000
@@ -484,13 +491,8 @@ def compact_numbers(message: str) -> str:
 
 
 def _max_steps() -> int:
-    """The longest run :func:`multipendulum.simulate` takes by default (its ``max_steps``)."""
-    import inspect
-
-    try:
-        return int(inspect.signature(_mp.simulate).parameters["max_steps"].default)
-    except (KeyError, TypeError, ValueError):  # pragma: no cover - a simulate without it
-        return 100_000_000
+    """The longest run :func:`multipendulum.simulate` takes by default (the core's ``max_steps``)."""
+    return int(_DEFAULTS["max_steps"])
 
 
 class _Reader:
@@ -661,30 +663,32 @@ class _Reader:
         t = self.table(raw, "simulation", _SIM_KEYS)
         t_end = self.number(self.require(t, "simulation", "t_end", "the duration in s (a number > 0)"),
                             "simulation.t_end", positive=True)
-        methods = tuple(getattr(_mp, "METHODS", _DEFAULT_METHODS))
-        method = self.choice(t.get("method", "dop853"), "simulation.method", methods)
+        method = self.choice(t.get("method", _DEFAULTS["method"]), "simulation.method", _METHODS)
         dt = None
         if "dt" in t:
             dt = self.number(t["dt"], "simulation.dt", positive=True)
         elif method in _FIXED_STEP:
             raise self.error("simulation.dt", f'missing; method "{method}" takes fixed steps and needs '
                              f"dt in s (a number > 0)")
-        rtol = self.number(t.get("rtol", 1e-10), "simulation.rtol", positive=True)
-        if rtol < MIN_RTOL and method == "dop853":
+        rtol = self.number(t.get("rtol", _DEFAULTS["rtol"]), "simulation.rtol", positive=True)
+        if rtol < MIN_RTOL and _core.METHOD_INFO[method]["adaptive"]:
             raise self.error("simulation.rtol", f"must be >= {_num(MIN_RTOL)} (dop853's error estimate is "
                              f"round-off below it), got {_describe(rtol)}")
         out = {
             "t_end": t_end, "method": method, "dt": dt,
             "rtol": rtol,
-            "atol": self.number(t.get("atol", 1e-12), "simulation.atol", positive=True),
+            # The core accepts atol = 0 (a purely relative tolerance): so does a scenario.
+            "atol": self.number(t.get("atol", _DEFAULTS["atol"]), "simulation.atol", nonneg=True),
             "sample_dt": self.number(t.get("sample_dt", 0.01), "simulation.sample_dt", positive=True),
             "form": None,
         }
         if "form" in t:
-            out["form"] = self.choice(t["form"], "simulation.form", ("lagrangian", "hamiltonian"))
-            if method not in ("rk4", "dop853"):
-                raise self.error("simulation.form", f'only applies to "rk4" and "dop853" (method "{method}" '
-                                 f"always integrates Hamilton's equations), got {_describe(out['form'])}")
+            out["form"] = self.choice(t["form"], "simulation.form", tuple(_core.FORMS))
+            # A form is a choice only for the methods that integrate more than one.
+            if len(_core.METHOD_INFO[method]["forms"]) < 2:
+                takes = " and ".join('"' + m + '"' for m in _METHODS if len(_core.METHOD_INFO[m]["forms"]) > 1)
+                raise self.error("simulation.form", f'only applies to {takes} (method "{method}" always '
+                                 f"integrates Hamilton's equations), got {_describe(out['form'])}")
         if dt is not None and dt > t_end:
             raise self.error("simulation.dt", f"must be <= t_end ({_describe(t_end)}), got {_describe(dt)}")
         return out

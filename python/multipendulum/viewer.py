@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any, Dict, Optional, Union
 from urllib.parse import unquote, urlsplit
 
-from multipendulum import InputError
+from .errors import InputError
 
 __all__ = ["web_dir", "scenario_json", "make_server", "parse_host", "parse_port", "WASM_NAME"]
 
