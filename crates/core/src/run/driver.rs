@@ -244,8 +244,6 @@ impl<S: OdeSystem, I: Integrator> Run<S, I> {
             return Err(e.clone());
         }
         let r = if self.method.adaptive() { self.controlled_step(until) } else { self.grid_step() };
-        self.state.evaluations = self.sys.n;
-        self.state.iterations = self.iterations_before + self.integ.iterations();
         if let Err(e) = &r {
             self.failed = Some(e.clone());
         }
@@ -351,9 +349,7 @@ impl<S: OdeSystem, I: Integrator> Run<S, I> {
     /// Make the dense output of the last accepted step (lazily; idempotent).
     pub fn dense(&mut self) -> Result<()> {
         let Some((t, h)) = self.last else { return Err(Error::input("no step taken yet")) };
-        let r = self.integ.dense(&mut self.sys, t, &self.y_prev, h, self.state.t, &self.state.y);
-        self.state.evaluations = self.sys.n;
-        r
+        self.integ.dense(&mut self.sys, t, &self.y_prev, h, self.state.t, &self.state.y)
     }
 
     /// The state at fraction `x` of the last accepted step, after [`Run::dense`].
@@ -381,14 +377,27 @@ impl<S: OdeSystem, I: Integrator> Run<S, I> {
         self.state.y.copy_from_slice(y);
         self.last = None;
         self.failed = None;
-        let r = self.integ.start(&mut self.sys, self.state.t, &self.state.y);
-        self.state.evaluations = self.sys.n;
-        r
+        self.integ.start(&mut self.sys, self.state.t, &self.state.y)
     }
 
     /// The driver's complete state (a checkpoint's core).
     pub fn save(&self) -> State {
-        State { memory: self.integ.save_any(), ..self.state.clone() }
+        State { memory: self.integ.save_any(), ..self.counted() }
+    }
+
+    /// The state with its counters brought up to date (they are not kept per step, which would
+    /// cost the double pendulum's hot loop a few percent).
+    fn counted(&self) -> State {
+        State {
+            evaluations: self.sys.n,
+            iterations: self.iterations_before + self.integ.iterations(),
+            ..self.state.clone()
+        }
+    }
+
+    /// Accepted steps, rejected attempts, right-hand side evaluations and implicit iterations.
+    pub fn counters(&self) -> (u64, u64, u64, u64) {
+        (self.state.steps, self.state.rejected, self.sys.n, self.iterations_before + self.integ.iterations())
     }
 
     pub fn t(&self) -> f64 {
@@ -397,6 +406,7 @@ impl<S: OdeSystem, I: Integrator> Run<S, I> {
     pub fn y(&self) -> &[f64] {
         &self.state.y
     }
+    /// The state (its counters as of the last [`Run::save`]; [`Run::counters`] for the current ones).
     pub fn state(&self) -> &State {
         &self.state
     }

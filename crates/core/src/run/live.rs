@@ -77,8 +77,8 @@ impl<T: TorqueSource> Stepper<T> {
     }
     /// Accepted steps, rejected attempts (dop853) and right-hand side evaluations so far.
     pub fn counts(&self) -> (u64, u64, u64) {
-        let s = self.run.state();
-        (s.steps, s.rejected, s.evaluations)
+        let (steps, rejected, evaluations, _) = self.run.counters();
+        (steps, rejected, evaluations)
     }
     pub fn theta(&self) -> &[f64] {
         &self.run.y()[..self.n()]

@@ -555,8 +555,8 @@ fn drive<T: TorqueSource, I: Integrator>(
             rec.next_out += 1;
         }
     }
-    let st = run.state();
-    let stats = Stats { steps: st.steps, rejected: st.rejected, evaluations: st.evaluations, iterations: st.iterations, energy_error: 0.0 };
+    let (steps, rejected, evaluations, iterations) = run.counters();
+    let stats = Stats { steps, rejected, evaluations, iterations, energy_error: 0.0 };
     let hits = std::mem::take(&mut tracker.hits);
     Ok(finish(chain, form, tracks_work, &initial, rec, hits, stats))
 }
