@@ -244,39 +244,32 @@ fn simulate<'py>(
     };
     let progress = progress.as_ref();
     let short = settings.is_short(t_end, b);
+    macro_rules! native {
+        ($s:expr) => {{
+            let s = $s;
+            if b > 1 {
+                let watch = Watch::units(b as u64);
+                interruptible(py, &watch, progress, short, || core::simulate_batch(c, theta0, omega0, t_end, &settings, &s, &watch))?
+                    .map(Trajectories)
+            } else {
+                let watch = Watch::new();
+                let mut monitor = |t: f64| {
+                    watch.set_fraction(t / t_end);
+                    watch.check(t)
+                };
+                interruptible(py, &watch, progress, short, || {
+                    let mut cps = checkpoint.as_ref().map(|_| core::Checkpoints { every_steps, due: &mut due, save: &mut save });
+                    core::simulate_from(c, start, t_end, &settings, s, &mut monitor, cps.as_mut())
+                })?
+                .map(|t| Trajectories(vec![t]))
+            }
+        }};
+    }
     let result = match src {
-        AnyTorque::Builtin(s) if b > 1 => {
-            let watch = Watch::units(b as u64);
-            interruptible(py, &watch, progress, short, || core::simulate_batch(c, theta0, omega0, t_end, &settings, &s, &watch))?.map(Trajectories)
-        }
-        AnyTorque::JointBuiltin(s) if b > 1 => {
-            let watch = Watch::units(b as u64);
-            interruptible(py, &watch, progress, short, || core::simulate_batch(c, theta0, omega0, t_end, &settings, &s, &watch))?.map(Trajectories)
-        }
-        AnyTorque::Builtin(s) => {
-            let watch = Watch::new();
-            let mut monitor = |t: f64| {
-                watch.set_fraction(t / t_end);
-                watch.check(t)
-            };
-            interruptible(py, &watch, progress, short, || {
-                let mut cps = checkpoint.as_ref().map(|_| core::Checkpoints { every_steps, due: &mut due, save: &mut save });
-                core::simulate_from(c, start, t_end, &settings, s, &mut monitor, cps.as_mut())
-            })?
-            .map(|t| Trajectories(vec![t]))
-        }
-        AnyTorque::JointBuiltin(s) => {
-            let watch = Watch::new();
-            let mut monitor = |t: f64| {
-                watch.set_fraction(t / t_end);
-                watch.check(t)
-            };
-            interruptible(py, &watch, progress, short, || {
-                let mut cps = checkpoint.as_ref().map(|_| core::Checkpoints { every_steps, due: &mut due, save: &mut save });
-                core::simulate_from(c, start, t_end, &settings, s, &mut monitor, cps.as_mut())
-            })?
-            .map(|t| Trajectories(vec![t]))
-        }
+        // The built-ins of both conventions run alike, without the GIL: a batch on all cores,
+        // a single run with its checkpoints.
+        AnyTorque::Builtin(s) => native!(s),
+        AnyTorque::JointBuiltin(s) => native!(s),
         mut src => {
             // The torque function needs the GIL: the rows in turn, here, with Ctrl-C and
             // progress checked now and then (at most ten times a second).
