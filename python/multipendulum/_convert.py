@@ -46,3 +46,12 @@ def as_float(x: object, name: str, finite: bool = False) -> float:
     if finite and not np.isfinite(a):
         raise InputError(f"{name} must be finite, got {float(a)}")
     return float(a)
+
+
+def is_float(text: str) -> bool:
+    """Whether ``text`` reads as a Python float (table files: a number or a header)."""
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True

@@ -29,6 +29,7 @@ import numpy as np
 import multipendulum._core as _core
 
 from ._chain import Chain
+from ._convert import is_float
 from .errors import InputError
 
 __all__ = ["Results", "save_results", "load_results", "atomic_path", "series", "check_single", "scenario_from_metadata",
@@ -466,15 +467,8 @@ def _csv_problem(path: Path, body, first_lineno: int, columns) -> InputError:
         if len(cells) != len(columns):
             return _damaged(path, f"line {lineno}: expected {len(columns)} values, got {len(cells)} (truncated?)")
         for j, cell in enumerate(cells):
-            if not _is_float(cell):
+            if not is_float(cell):
                 return _damaged(path, f"line {lineno}, column {j + 1} ({columns[j]}): expected a number, "
                                       f"got {cell[:40]!r}")
     return _damaged(path, "the CSV samples cannot be read as numbers")
 
-
-def _is_float(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True

@@ -51,6 +51,7 @@ except ModuleNotFoundError:  # pragma: no cover - Python 3.9/3.10
 import multipendulum._core as _core
 
 from ._chain import Chain
+from ._convert import is_float
 from ._simulate import simulate
 from ._torque import Sinusoid, Table
 from .errors import InputError
@@ -771,7 +772,7 @@ class _Reader:
             if not stripped:
                 continue
             cells = [c.strip() for c in stripped.split(",")]
-            if not rows and not any(_is_float(c) for c in cells):
+            if not rows and not any(is_float(c) for c in cells):
                 header = cells  # a header line (names for the columns)
                 continue
             if len(cells) != n + 1:
@@ -779,7 +780,7 @@ class _Reader:
                                  f"per link), got {len(cells)}")
             numbers = []
             for j, cell in enumerate(cells):
-                if not _is_float(cell):
+                if not is_float(cell):
                     raise self.error(key, f"{name} line {lineno}, {column(j)}: expected a number, got {cell!r}")
                 value = float(cell)
                 if not math.isfinite(value):
@@ -835,10 +836,3 @@ class _Reader:
 def _join(key: str, name: str) -> str:
     return f"{key}.{name}" if key else name
 
-
-def _is_float(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True

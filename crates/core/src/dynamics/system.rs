@@ -81,6 +81,15 @@ pub(crate) fn singular(t: f64, y: &[f64], s: super::Singular) -> Error {
     }
 }
 
+/// A step's state must stay finite: the integration error at `t` otherwise.
+pub(crate) fn check_finite_state(t: f64, y: &[f64]) -> Result<()> {
+    if y.iter().all(|v| v.is_finite()) {
+        Ok(())
+    } else {
+        Err(Error::integration(t, NON_FINITE))
+    }
+}
+
 pub(crate) const NON_FINITE: &str = "the state became non-finite (the motion blew up; reduce dt or the tolerances)";
 
 impl<C: Borrow<Chain>, T: TorqueSource> OdeSystem for ChainSystem<C, T> {

@@ -14,7 +14,7 @@
 //! remember is in its typed memory, so none of it can be left out.
 use serde::{Deserialize, Serialize};
 
-use crate::dynamics::system::{OdeSystem, NON_FINITE};
+use crate::dynamics::system::{check_finite_state, OdeSystem, NON_FINITE};
 use crate::error::{Error, Result};
 use crate::integrators::{AnyIntegrator, AnyMemory, Controller, Decision, Integrator, Method};
 
@@ -256,7 +256,7 @@ impl<S: OdeSystem, I: Integrator> Run<S, I> {
         let (t, t_next) = (self.state.t, self.grid(k + 1));
         let h = t_next - t;
         self.integ.attempt(&mut self.sys, t, &self.state.y, h, &mut self.y_new)?;
-        check_finite(t_next, &self.y_new)?;
+        check_finite_state(t_next, &self.y_new)?;
         self.commit(t, h, t_next);
         Ok(())
     }
@@ -286,7 +286,7 @@ impl<S: OdeSystem, I: Integrator> Run<S, I> {
                 None if !err.is_finite() => return Err(Error::integration(t + h_try, NON_FINITE)),
                 None => h,
             };
-            check_finite(t + h_try, &self.y_new)?;
+            check_finite_state(t + h_try, &self.y_new)?;
             // A step shortened to land on the end or a target says little about the next one:
             // keep the proposal it was cut from.
             if !last {
@@ -423,13 +423,5 @@ impl<S: OdeSystem, I: Integrator> Run<S, I> {
     /// The error that stopped the run, if any.
     pub fn failure(&self) -> Option<&Error> {
         self.failed.as_ref()
-    }
-}
-
-fn check_finite(t: f64, y: &[f64]) -> Result<()> {
-    if y.iter().all(|v| v.is_finite()) {
-        Ok(())
-    } else {
-        Err(Error::integration(t, NON_FINITE))
     }
 }

@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 use super::driver::{fixed_steps, Config, Run, State};
 use super::energy::EnergyBalance;
 use super::events::{EventSpec, Hit, Tracker};
-use crate::dynamics::system::{ChainSystem, Form, OdeSystem};
+use crate::dynamics::system::{check_finite_state, ChainSystem, Form, OdeSystem};
 use crate::dynamics::torque::TorqueSource;
 use crate::dynamics::Workspace;
 use crate::error::{Error, Result};
@@ -249,7 +249,7 @@ impl Recorder {
     /// A row from an interpolant: a step's ends are checked for blow-up, but its dense output
     /// can still overflow between them, and a NaN must never be returned as a result.
     fn push_interpolated(&mut self, t: f64, y: &[f64]) -> Result<()> {
-        check_state_finite(t, y)?;
+        check_finite_state(t, y)?;
         self.push(t, y);
         Ok(())
     }
@@ -353,14 +353,6 @@ pub type Monitor<'a> = &'a mut dyn FnMut(f64) -> Result<()>;
 
 /// How often (in steps) the monitor is called.
 pub const MONITOR_EVERY: u64 = 64;
-
-fn check_state_finite(t: f64, y: &[f64]) -> Result<()> {
-    if y.iter().all(|v| v.is_finite()) {
-        Ok(())
-    } else {
-        Err(Error::integration(t, crate::dynamics::system::NON_FINITE))
-    }
-}
 
 /// Integrate `chain` from `(theta0, omega0)` at t = 0 to `t_end`.
 pub fn simulate<T: TorqueSource>(
@@ -629,6 +621,19 @@ fn finish(chain: &Chain, form: Form, work: bool, initial: &[f64], rec: Recorder,
     tr
 }
 
+/// The number of trajectories in rows of `theta0` and `omega0` (B x N each).
+fn batch_size(chain: &Chain, theta0: &[f64], omega0: &[f64]) -> Result<usize> {
+    let n = chain.n();
+    if theta0.len() != omega0.len() || theta0.len() % n != 0 {
+        return Err(Error::input(format!(
+            "theta0 and omega0 must both have shape (B, {n}), got {} and {} numbers",
+            theta0.len(),
+            omega0.len()
+        )));
+    }
+    Ok(theta0.len() / n)
+}
+
 /// Run a batch of initial states one after another with one torque source (a torque that
 /// cannot cross threads, such as a Python function): results in input order, each identical to
 /// its single run. `monitor(fraction, t)` is called as in [`simulate`], with the fraction of the
@@ -642,15 +647,7 @@ pub fn simulate_each<T: TorqueSource>(
     torque: &mut T,
     monitor: &mut dyn FnMut(f64, f64) -> Result<()>,
 ) -> Result<Vec<Trajectory>> {
-    let n = chain.n();
-    if theta0.len() != omega0.len() || theta0.len() % n != 0 || theta0.is_empty() {
-        return Err(Error::input(format!(
-            "theta0 and omega0 must both have shape (B, {n}), got {} and {} numbers",
-            theta0.len(),
-            omega0.len()
-        )));
-    }
-    let b = theta0.len() / n;
+    let (n, b) = (chain.n(), batch_size(chain, theta0, omega0)?);
     (0..b)
         .map(|i| {
             let range = i * n..(i + 1) * n;
@@ -673,20 +670,12 @@ pub fn simulate_batch<T: TorqueSource + Clone + Send + Sync>(
     torque: &T,
     watch: &Watch,
 ) -> Result<Vec<Trajectory>> {
-    let n = chain.n();
-    if theta0.len() != omega0.len() || theta0.len() % n != 0 {
-        return Err(Error::input(format!(
-            "theta0 and omega0 must both have shape (B, {n}), got {} and {} numbers",
-            theta0.len(),
-            omega0.len()
-        )));
-    }
+    let (n, b) = (chain.n(), batch_size(chain, theta0, omega0)?);
     if settings.method.adaptive() && settings.adaptive && settings.t_eval.is_none() {
         return Err(Error::input(
             "a batch run of an adaptive method needs t_eval (each trajectory takes its own steps)",
         ));
     }
-    let b = theta0.len() / n;
     let rows = settings.validate(t_end)?;
     check_output_size(rows as f64 * b as f64, n)?;
     check_fixed_steps(settings, t_end)?;
