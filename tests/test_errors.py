@@ -121,9 +121,11 @@ def test_a_blow_up_raises_integration_error_naming_the_time():
 
 
 def test_gauss_stage_equations_that_cannot_converge_are_reported():
+    # Neither fixed-point iteration nor the simplified Newton iteration that takes over solves
+    # the stages of a step this large for so fast a chain (at the first step or soon after).
     with pytest.raises(mp.IntegrationError, match="did not converge; reduce dt") as e:
         mp.simulate(mp.Chain(**CHAIN), [3.0, -3.0], [30.0, -30.0], 10.0, method="gauss6", dt=1.0)
-    assert e.value.t == 0.0
+    assert e.value.t in (0.0, 1.0, 2.0)
 
 
 def test_accelerations_refuse_bad_shapes_and_unknown_algorithms():

@@ -3,15 +3,18 @@
 The physics lives in a Rust core (``multipendulum._core``); this package converts, presents and
 orchestrates. Public API::
 
-    chain = Chain(lengths, masses, com=None, inertia=None, g=9.81)   # or Chain.rods(...)
-    sol = simulate(chain, theta0, omega0, t_end, method="dop853", ...)
+    chain = Chain(lengths, masses, com=None, inertia=None, g=9.81,  # or Chain.rods(...)
+                  damping=None, friction=None, friction_velocity=1e-3, cart=None)
+    sol = simulate(chain, theta0, omega0, t_end, method="dop853", ...,
+                   pivot=None, cart_x0=0.0, cart_v0=0.0, cart_force=None)
 """
 
 import typing as _typing
 
 from . import _core
+from ._base import Cart, Pivot
 from ._chain import Chain
-from ._simulate import DEFAULTS, METHOD_INFO, METHODS, Crossing, Event, EventRecord, Flip, Solution, Stats, resume, simulate
+from ._simulate import DEFAULTS, METHOD_INFO, METHODS, Crossing, Event, EventRecord, Flip, Solution, Stats, Work, resume, simulate
 from ._torque import Sinusoid, Table
 from .checkpoint import load_checkpoint
 from .chaos import EnsembleResult, FlipMap, LyapunovResult, ensemble, PoincareSection, plot_poincare, poincare, flip_energy_threshold, flip_map, flip_times, lyapunov, trustworthy_until
@@ -24,7 +27,7 @@ from .sweeps import open_flip_map, sweep, sweep_flip_map
 __version__ = _core.__version__
 
 __all__ = [
-    "Chain", "simulate", "resume", "load_checkpoint", "Solution", "Stats", "Flip", "Crossing", "Event", "EventRecord", "METHODS", "METHOD_INFO", "Sinusoid", "Table",
+    "Chain", "Cart", "Pivot", "Work", "simulate", "resume", "load_checkpoint", "Solution", "Stats", "Flip", "Crossing", "Event", "EventRecord", "METHODS", "METHOD_INFO", "Sinusoid", "Table",
     "InputError", "IntegrationError", "__version__",
     "normal_modes", "NormalModes", "linearize", "animate_mode", "plot_modes",
     "sweep", "sweep_flip_map", "open_flip_map", "plot_flip_map",

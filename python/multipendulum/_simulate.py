@@ -10,6 +10,7 @@ import numpy as np
 import numpy.typing as npt
 
 import multipendulum._core as _core
+from ._base import ForceLike, Pivot, core_force, core_pivot, force_object, normalise_force, normalise_pivot, pivot_object
 from ._chain import Chain, as_state
 from ._convert import Integer, as_float, as_floats
 from ._lyapunov import lyapunov, trustworthy_until
@@ -113,6 +114,48 @@ def _records(hits: Sequence[Sequence[Any]], count: int, n: int) -> List[EventRec
     return out
 
 
+class Work(np.lib.mixins.NDArrayOperatorsMixin):
+    """The work done on the chain since t = 0, by source. It behaves as the array of the net
+    work ``torque + pivot + cart - dissipated`` (so ``sol.energy - sol.energy[0] - sol.work``
+    is the energy balance's residual); its parts are arrays of the same shape:
+
+    - ``torque``: by the torques (generalized or joint);
+    - ``pivot``: by a moving pivot (its force on the chain times its velocity);
+    - ``cart``: by the force applied to the cart;
+    - ``dissipated``: the energy the joints' damping and friction and the cart's damping took
+      (never negative, never decreasing).
+    """
+
+    def __init__(self, torque: npt.NDArray[np.float64], pivot: npt.NDArray[np.float64],
+                 cart: npt.NDArray[np.float64], dissipated: npt.NDArray[np.float64]) -> None:
+        self.torque, self.pivot, self.cart, self.dissipated = torque, pivot, cart, dissipated
+
+    @property
+    def net(self) -> npt.NDArray[np.float64]:
+        """``torque + pivot + cart - dissipated``"""
+        return self.torque + self.pivot + self.cart - self.dissipated
+
+    def __array__(self, dtype: Any = None, copy: Any = None) -> npt.NDArray[Any]:
+        return self.net if dtype is None else self.net.astype(dtype)
+
+    def __array_ufunc__(self, ufunc: Any, method: str, *inputs: Any, **kwargs: Any) -> Any:
+        args = [x.net if isinstance(x, Work) else x for x in inputs]
+        return getattr(ufunc, method)(*args, **kwargs)
+
+    def __getitem__(self, key: Any) -> Any:
+        return self.net[key]
+
+    def __len__(self) -> int:
+        return len(self.torque)
+
+    @property
+    def shape(self) -> Tuple[int, ...]:
+        return self.torque.shape
+
+    def __repr__(self) -> str:
+        return f"Work(shape={self.shape}, net[-1]={self.net.reshape(-1)[-1] if self.net.size else None})"
+
+
 @dataclass(frozen=True)
 class Stats:
     """Counters of a run (arrays of shape (B,) for a batch run)."""
@@ -142,6 +185,8 @@ class Solution:
     # Set by the run that made it: the torque to recompute with (None for a Python function) and
     # its convention, and the run's rtol.
     _torque: Optional[TorqueLike]
+    _pivot: Optional[Pivot]
+    _cart_force: Optional[ForceLike]
     _joint: bool
     _rtol: float
     _initial: Tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]
@@ -162,21 +207,35 @@ class Solution:
         self.omega: npt.NDArray[np.float64] = data["omega"].reshape(shape + (n,))
         self.p: npt.NDArray[np.float64] = data["p"].reshape(shape + (n,))
         self.energy: npt.NDArray[np.float64] = data["energy"].reshape(shape)
-        self.work: npt.NDArray[np.float64] = data["work"].reshape(shape)
+        zeros = np.zeros(shape)
+        part = (lambda k: data[k].reshape(shape) if data[k].size else zeros)
+        #: The work done on the chain by source (:class:`Work`; as an array, the net work).
+        self.work: Work = Work(data["work"].reshape(shape), part("work_pivot"), part("work_cart"), part("dissipated"))
+        cart = data["cart_x"].size > 0
+        #: The cart's position and velocity (..., T), or None without a cart.
+        self.cart_x: Optional[npt.NDArray[np.float64]] = data["cart_x"].reshape(shape) if cart else None
+        self.cart_v: Optional[npt.NDArray[np.float64]] = data["cart_v"].reshape(shape) if cart else None
+        #: The pivot's position (..., T, 2): zeros on a fixed pivot; on a cart, (cart_x, 0).
+        self.pivot: npt.NDArray[np.float64] = (data["pivot"].reshape(shape + (2,)) if data["pivot"].size
+                                               else np.zeros(shape + (2,)))
+        if cart:
+            self.pivot[..., 0] = self.cart_x
         self._energy_error: npt.NDArray[np.float64] = data["energy_error"].reshape(shape)
         self._positions: Optional[npt.NDArray[np.float64]] = None
 
     @property
     def positions(self) -> npt.NDArray[np.float64]:
-        """Joint positions (..., T, N, 2), computed by the core on first use."""
+        """Joint positions (..., T, N, 2) in the lab frame (with the pivot's or the cart's
+        displacement), computed by the core on first use."""
         if self._positions is None:
-            self._positions = self.chain.positions(self.theta)
+            self._positions = self.chain.positions(self.theta) + self.pivot[..., None, :]
         return self._positions
 
     @property
     def energy_error(self) -> npt.NDArray[np.float64]:
         """The energy error at each output, as the core defines it once for every report:
-        ``|E(t) - E(0) - W(t)| / S(t)`` against the initial state, with the scale
+        ``|E(t) - E(0) - W(t)| / S(t)`` against the initial state, ``W`` the net work
+        (:class:`Work`: torques, pivot and cart force, minus the energy dissipated), with the scale
         ``S = g sum |h_i| + max T`` (the potential well's depth plus the largest kinetic energy so
         far), which never vanishes for a chain under gravity."""
         return self._energy_error
@@ -251,7 +310,8 @@ def simulate(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: 
              max_steps: Integer = int(DEFAULTS["max_steps"]), progress: Progress = None,
              events: Optional[Sequence[Union[Flip, Crossing, Event]]] = None, checkpoint: Optional[PathLike] = None,
              checkpoint_every: Optional[Integer] = None, checkpoint_seconds: Optional[float] = None,
-             checkpoint_info: Optional[Dict[str, Any]] = None) -> Solution:
+             checkpoint_info: Optional[Dict[str, Any]] = None, pivot: Optional[Pivot] = None,
+             cart_x0: float = 0.0, cart_v0: float = 0.0, cart_force: Optional[ForceLike] = None) -> Solution:
     """Integrate ``chain`` from ``(theta0, omega0)`` at t = 0 to ``t_end`` (seconds).
 
     Methods (:data:`METHODS`): ``"rk4"`` classical Runge–Kutta, order 4, fixed ``dt``;
@@ -277,6 +337,15 @@ def simulate(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: 
     ``events``: :class:`Flip` / :class:`Crossing` / :class:`Event` conditions, located by root finding on the
     dense output; ``sol.events[i]`` holds event i's crossings, ``sol.stopped_at`` the time a
     terminal one ended the run.
+
+    ``pivot``: a :class:`Pivot` moving the chain's pivot along a prescribed path (its
+    acceleration acts on the angles; the energy is the lab frame's and ``sol.work.pivot`` the
+    pivot's work). On a chain with a :class:`Cart`: ``cart_x0``, ``cart_v0`` its initial
+    position and velocity, ``cart_force`` the horizontal force on it (a number,
+    :class:`Sinusoid`/:class:`Table` of one value, or a feedback ``f(t, state)`` with
+    ``state = (x, theta_1..theta_N, v, omega_1..omega_N)``); ``sol.cart_x``, ``sol.cart_v``.
+    With damping or friction the energy error is the residual of the energy balance
+    ``E(t) - E(0) - W_torque - W_pivot - W_cart + D`` (:class:`Work`).
 
     ``checkpoint``: a file to which the run's complete state is written every
     ``checkpoint_every`` steps and/or every ``checkpoint_seconds`` of wall time (default: every
@@ -331,8 +400,20 @@ def simulate(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: 
             raise InputError("a Python event function (mp.Event) runs in single runs only; "
                              "use mp.Flip or mp.Crossing for batches")
     event_specs = [e._spec(chain.n) for e in events]
-    run = dict(method=method, form=form, t_end=t_end, dt=dt, rtol=rtol, atol=atol, adaptive=bool(adaptive),
-               max_steps=int(max_steps), torque=spec, joint=joint, has_t_eval=t_eval is not None)
+    pivot_spec, force_spec = normalise_pivot(pivot), normalise_force(cart_force)
+    cart0 = [as_float(cart_x0, "cart_x0", finite=True), as_float(cart_v0, "cart_v0", finite=True)]
+    if chain.cart is None and (cart0 != [0.0, 0.0] or force_spec is not None):
+        raise InputError("cart_x0, cart_v0 and cart_force need a chain with a cart (mp.Chain(..., cart=mp.Cart(mass)))")
+    run: Dict[str, Any] = dict(method=method, form=form, t_end=t_end, dt=dt, rtol=rtol, atol=atol,
+                               adaptive=bool(adaptive), max_steps=int(max_steps), torque=spec, joint=joint,
+                               has_t_eval=t_eval is not None)
+    # Only runs with a drive record it (checkpoints of other runs stay as they were).
+    if pivot_spec is not None:
+        run["pivot"] = pivot_spec
+    if force_spec is not None:
+        run["cart_force"] = force_spec
+    if cart0 != [0.0, 0.0]:
+        run["cart0"] = cart0
     writer = None
     if checkpoint is not None:
         if batch_shape:
@@ -342,6 +423,10 @@ def simulate(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: 
                              "a Python torque function cannot be saved")
         if events:
             raise InputError("checkpoints cannot be combined with events (the event tracker's state is not saved)")
+        if (force_spec is not None and force_spec[0] == "function") or (
+                pivot_spec is not None and any(a[0] == "function" for a in pivot_spec)):
+            raise InputError("checkpoints need a built-in pivot motion and cart force (numbers, mp.Sinusoid, "
+                             "mp.Table): a Python function cannot be saved")
         if not isinstance(checkpoint, (str, os.PathLike)):
             raise InputError(f"checkpoint must be a file path, got {type(checkpoint).__name__}")
         every_steps, every_seconds = cadence(checkpoint_every, checkpoint_seconds)
@@ -350,6 +435,7 @@ def simulate(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: 
         raise InputError("checkpoint_every / checkpoint_seconds need checkpoint=FILE")
     sol = _run(chain, th0, om0, run, t_eval, progress, event_specs, writer, batch_shape=batch_shape)
     sol._torque = joint_torque if joint else torque
+    sol._pivot, sol._cart_force = pivot, cart_force
     return sol
 
 
@@ -384,7 +470,9 @@ def _run(chain: Chain, th0: npt.NDArray[Any], om0: npt.NDArray[Any], run: Dict[s
                               form=run["form"], dt=run["dt"], rtol=run["rtol"], atol=run["atol"],
                               adaptive=run["adaptive"], t_eval=t_eval, max_steps=run["max_steps"],
                               torque=core_torque(spec, run["joint"]), progress=report, events=list(event_specs),
-                              checkpoint=ckpt, resume=resume)
+                              checkpoint=ckpt, resume=resume, pivot=core_pivot(run.get("pivot")),
+                              cart_force=core_force(run.get("cart_force")),
+                              cart0=tuple(run.get("cart0", (0.0, 0.0))))
     wall = wall_before + time.perf_counter() - start
     _refuse_nan(data)
     stats = Stats._from(data["stats"], bool(batch_shape), wall)
@@ -395,6 +483,7 @@ def _run(chain: Chain, th0: npt.NDArray[Any], om0: npt.NDArray[Any], run: Dict[s
         sol._torque = torque_object(spec, chain.n)
     else:
         sol._torque = None
+    sol._pivot, sol._cart_force = pivot_object(run.get("pivot")), force_object(run.get("cart_force"))
     return sol
 
 

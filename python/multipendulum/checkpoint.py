@@ -93,8 +93,11 @@ class Archive:
         from ._chain import Chain
 
         a = self.arrays
-        return Chain(lengths=a["lengths"], masses=a["masses"], com=a["com"], inertia=a["inertia"],
-                     g=float(a["g"]))
+        chain = Chain(lengths=a["lengths"], masses=a["masses"], com=a["com"], inertia=a["inertia"],
+                      g=float(a["g"]))
+        # Losses and a cart (the model beyond the seeds) are kept in the metadata.
+        extra = self.metadata.get("chain")
+        return Chain.from_dict({**chain.to_dict(), **extra}) if extra else chain
 
     def __repr__(self) -> str:
         where = f" {str(self.path)!r}" if self.path else ""
@@ -125,6 +128,9 @@ class Writer:
             "checkpoint": {"every_steps": every_steps, "every_seconds": every_seconds},
             "info": info,
         }
+        extra = {k: v for k, v in chain.to_dict().items() if k not in _CHAIN}
+        if extra:
+            self.meta["chain"] = extra
         self.every_steps, self.every_seconds = every_steps, every_seconds
         self.wall_before = wall_before
         self.start = time.perf_counter()

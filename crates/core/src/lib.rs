@@ -24,14 +24,17 @@ pub mod run;
 pub mod trig;
 pub mod watch;
 
+pub use dynamics::base::{Axis, AxisFn, Drive, Force, ForceFn, Motion, Pivot};
+pub use dynamics::general::Load;
 pub use dynamics::reference;
 pub use dynamics::system::{ChainSystem, Form, OdeSystem};
 pub use dynamics::torque::{Builtin, Interp, Joint, TorqueSource};
 pub use dynamics::{Singular, Workspace};
 pub use error::{Error, Result};
 pub use integrators::{Facts, Method};
-pub use model::Chain;
+pub use model::{Cart, Chain};
 pub use run::events::{Condition, EventFn, EventSpec};
 pub use run::live::Stepper;
+pub use run::simulate::Terms;
 pub use run::{simulate, simulate_batch, simulate_each, simulate_from, Checkpoint, Checkpoints, Settings, Start, Stats, Trajectory};
 pub use watch::Watch;

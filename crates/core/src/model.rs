@@ -23,6 +23,49 @@ pub struct Chain {
     pub(crate) h: Vec<f64>,
     /// `A_ii = I_i + m_i c_i^2 + l_i^2 sum_{k>i} m_k`.
     pub(crate) diag: Vec<f64>,
+    /// Losses at the joints: viscous damping and regularised Coulomb friction
+    /// ([`crate::dynamics::losses`]); all zero for the seeds' ideal chain.
+    pub(crate) joints: Joints,
+    /// The base slides along x as a degree of freedom when there is a cart.
+    pub(crate) cart: Option<Cart>,
+}
+
+/// The joints' losses. Joint `i` connects link `i-1` to link `i` (joint 0: the base to link 0)
+/// and turns at the relative rate `w_i = omega_i - omega_{i-1}` (`omega_{-1} = 0`); its torque
+/// `u_i = -damping_i w_i - friction_i tanh(w_i / friction_velocity)` acts `+u_i` on link `i` and
+/// `-u_i` on link `i-1`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Joints {
+    pub damping: Vec<f64>,
+    pub friction: Vec<f64>,
+    /// The regularisation rate `v_s` (rad/s) of the Coulomb friction: below it the friction
+    /// torque grows linearly with the rate, as a steep viscous damping `f / v_s`.
+    pub friction_velocity: f64,
+    /// Whether any joint has a loss (so the ideal chain skips them).
+    pub(crate) any: bool,
+}
+
+/// The default regularisation rate of the Coulomb friction (rad/s).
+pub const FRICTION_VELOCITY: f64 = 1e-3;
+
+/// A cart on a horizontal rail carrying the chain's pivot: its mass and viscous damping
+/// (force `-damping * v`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Cart {
+    pub mass: f64,
+    pub damping: f64,
+}
+
+impl Cart {
+    pub fn new(mass: f64, damping: f64) -> Result<Self> {
+        if !(mass.is_finite() && mass > 0.0) {
+            return Err(Error::input(format!("cart mass must be > 0 and finite, got {mass}")));
+        }
+        if !(damping.is_finite() && damping >= 0.0) {
+            return Err(Error::input(format!("cart damping must be >= 0 and finite, got {damping}")));
+        }
+        Ok(Cart { mass, damping })
+    }
 }
 
 impl Chain {
@@ -86,7 +129,8 @@ impl Chain {
         // parameters so small or so large in scale that those products leave the normal range make
         // the mass matrix numerically singular in every configuration. Refuse them here, as bad
         // input, rather than at t = 0 as a failed integration.
-        let chain = Chain { lengths: lengths.to_vec(), masses: masses.to_vec(), com, inertia, g, h, diag };
+        let joints = Joints { damping: vec![0.0; n], friction: vec![0.0; n], friction_velocity: FRICTION_VELOCITY, any: false };
+        let chain = Chain { lengths: lengths.to_vec(), masses: masses.to_vec(), com, inertia, g, h, diag, joints, cart: None };
         chain.check_nonsingular()?;
         // (A chain that passes the structural check has every diagonal entry > 0 in exact
         // arithmetic: a zero here is an underflow.)
@@ -111,6 +155,69 @@ impl Chain {
         let com: Vec<f64> = lengths.iter().map(|l| 0.5 * l).collect();
         let inertia: Vec<f64> = lengths.iter().zip(masses).map(|(l, m)| m * l * l / 12.0).collect();
         Self::new(lengths, masses, Some(&com), Some(&inertia), g)
+    }
+
+    /// The same chain with losses at its joints: `damping` (N m s/rad) and `friction` (N m), one
+    /// value per joint, and the friction's regularisation rate (rad/s).
+    pub fn with_losses(mut self, damping: &[f64], friction: &[f64], friction_velocity: f64) -> Result<Self> {
+        let n = self.n();
+        check_len("damping", damping, n)?;
+        check_len("friction", friction, n)?;
+        for (name, values) in [("damping", damping), ("friction", friction)] {
+            for (i, &v) in values.iter().enumerate() {
+                if !(v.is_finite() && v >= 0.0) {
+                    return Err(Error::input(format!("{name}[{i}] must be >= 0 and finite, got {v}")));
+                }
+            }
+        }
+        if !(friction_velocity.is_finite() && friction_velocity > 0.0) {
+            return Err(Error::input(format!("friction_velocity must be > 0 and finite, got {friction_velocity}")));
+        }
+        let any = damping.iter().chain(friction).any(|&v| v > 0.0);
+        self.joints = Joints { damping: damping.to_vec(), friction: friction.to_vec(), friction_velocity, any };
+        Ok(self)
+    }
+
+    /// The same chain on a cart (or on a fixed pivot, `None`).
+    pub fn with_cart(mut self, cart: Option<Cart>) -> Result<Self> {
+        if let Some(c) = cart {
+            Cart::new(c.mass, c.damping)?;
+            let total = c.mass + self.masses.iter().sum::<f64>();
+            if !(total * total).is_finite() {
+                return Err(Error::input(format!("the cart's and chain's mass {total:e} overflows")));
+            }
+        }
+        self.cart = cart;
+        Ok(self)
+    }
+
+    pub fn joints(&self) -> &Joints {
+        &self.joints
+    }
+
+    pub fn cart(&self) -> Option<Cart> {
+        self.cart
+    }
+
+    /// Whether any joint has damping or friction.
+    #[inline]
+    pub fn lossy_joints(&self) -> bool {
+        self.joints.any
+    }
+
+    /// Whether the chain loses energy by itself (joint damping or friction, cart damping).
+    pub fn dissipative(&self) -> bool {
+        self.lossy_joints() || self.cart.is_some_and(|c| c.damping > 0.0)
+    }
+
+    /// The seeds' ideal chain: no losses, no cart (the fast paths of the dynamics).
+    pub fn is_ideal(&self) -> bool {
+        !self.lossy_joints() && self.cart.is_none()
+    }
+
+    /// The total mass of the links.
+    pub fn total_mass(&self) -> f64 {
+        self.masses.iter().sum()
     }
 
     /// Refuse a chain whose mass matrix is singular in some configuration.

@@ -21,6 +21,7 @@ use pyo3::prelude::*;
 use core::watch::{supervise, Watch};
 use core::Error;
 
+mod base;
 mod chain;
 mod chaos;
 mod facts;
@@ -96,6 +97,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("InputError", m.py().get_type::<InputError>())?;
     m.add("IntegrationError", m.py().get_type::<IntegrationError>())?;
     torque::register(m)?;
+    base::register(m)?;
     chain::register(m)?;
     run::register(m)?;
     chaos::register(m)?;

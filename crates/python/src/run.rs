@@ -10,6 +10,7 @@ use pyo3::types::PyBytes;
 
 use core::{Error, Form, Method, Settings, Watch};
 
+use crate::base::{PyAxis, PyCartForce};
 use crate::chain::PyChain;
 use crate::torque::{torque_error, AnyTorque, PyTorque};
 use crate::{interruptible, slice, to_py, vec_out, InputError};
@@ -55,6 +56,13 @@ fn trajectories_out<'py>(py: Python<'py>, trs: Trajectories) -> PyResult<Bound<'
     d.set_item("energy", vec_out(py, take(&mut trs, |t| std::mem::take(&mut t.energy))))?;
     d.set_item("work", vec_out(py, take(&mut trs, |t| std::mem::take(&mut t.work))))?;
     d.set_item("energy_error", vec_out(py, take(&mut trs, |t| std::mem::take(&mut t.energy_error))))?;
+    // The general model's terms (empty arrays when the run has none).
+    d.set_item("work_pivot", vec_out(py, take(&mut trs, |t| std::mem::take(&mut t.work_pivot))))?;
+    d.set_item("work_cart", vec_out(py, take(&mut trs, |t| std::mem::take(&mut t.work_cart))))?;
+    d.set_item("dissipated", vec_out(py, take(&mut trs, |t| std::mem::take(&mut t.dissipated))))?;
+    d.set_item("cart_x", vec_out(py, take(&mut trs, |t| std::mem::take(&mut t.cart_x))))?;
+    d.set_item("cart_v", vec_out(py, take(&mut trs, |t| std::mem::take(&mut t.cart_v))))?;
+    d.set_item("pivot", vec_out(py, take(&mut trs, |t| std::mem::take(&mut t.pivot))))?;
     let events = pyo3::types::PyList::empty(py);
     let stopped = pyo3::types::PyList::empty(py);
     for tr in trs.iter_mut() {
@@ -162,7 +170,7 @@ fn event_spec(py: Python<'_>, spec: &PyEventSpec, errors: &EventErrors) -> core:
 /// save)`, `save(state: bytes, t, steps)` called with the run's serialised state; `resume`: such
 /// bytes.
 #[pyfunction]
-#[pyo3(signature = (chain, theta0, omega0, t_end, *, method, rtol, atol, max_steps, form=None, dt=None, adaptive=true, t_eval=None, torque=None, progress=None, events=None, checkpoint=None, resume=None))]
+#[pyo3(signature = (chain, theta0, omega0, t_end, *, method, rtol, atol, max_steps, form=None, dt=None, adaptive=true, t_eval=None, torque=None, progress=None, events=None, checkpoint=None, resume=None, pivot=None, cart_force=None, cart0=(0.0, 0.0)))]
 #[allow(clippy::too_many_arguments)]
 fn simulate<'py>(
     py: Python<'py>,
@@ -183,6 +191,9 @@ fn simulate<'py>(
     events: Option<Vec<PyRef<'py, PyEventSpec>>>,
     checkpoint: Option<(u64, Option<f64>, Py<PyAny>)>,
     resume: Option<Vec<u8>>,
+    pivot: Option<(PyRef<'py, PyAxis>, PyRef<'py, PyAxis>)>,
+    cart_force: Option<PyRef<'py, PyCartForce>>,
+    cart0: (f64, f64),
 ) -> PyResult<Bound<'py, pyo3::types::PyDict>> {
     let c = &chain.inner;
     let n = c.n();
@@ -198,16 +209,20 @@ fn simulate<'py>(
         t_eval: t_eval.as_ref().map(|a| slice("t_eval", a).map(<[f64]>::to_vec)).transpose()?,
         max_steps,
         events: events.unwrap_or_default().iter().map(|e| event_spec(py, e, &event_errors)).collect(),
+        drive: core::Drive { pivot: crate::base::pivot(py, pivot, &event_errors)?, force: crate::base::force(py, cart_force, &event_errors)? },
+        cart0: [cart0.0, cart0.1],
     };
+    let base_callbacks = settings.drive.pivot.as_ref().is_some_and(|p| matches!(p.x, core::Axis::Function(_)) || matches!(p.y, core::Axis::Function(_)))
+        || settings.drive.force.as_ref().is_some_and(core::Force::is_feedback);
     let (theta0, omega0) = (slice("theta0", &theta0)?, slice("omega0", &omega0)?);
     let b = core::dynamics::rows::count("theta0", theta0.len(), n).map_err(err)?;
     let slot = RefCell::new(None);
     let src = crate::torque::torque(py, n, torque.as_deref(), &slot)?;
     let resume = resume.as_deref().map(core::Checkpoint::from_bytes).transpose().map_err(err)?;
     let callable = matches!(src, AnyTorque::Call(_) | AnyTorque::JointCall(_));
-    if (checkpoint.is_some() || resume.is_some()) && (b > 1 || callable) {
+    if (checkpoint.is_some() || resume.is_some()) && (b > 1 || callable || base_callbacks) {
         return Err(InputError::new_err(
-            "checkpoints need a single run with a built-in torque (not a batch, not a Python torque function)",
+            "checkpoints need a single run with built-in inputs (not a batch, not a Python torque, pivot or cart force function)",
         ));
     }
     let save_error: Mutex<Option<PyErr>> = Default::default();

@@ -2,6 +2,7 @@
 //! ensembles (the flip-time "fractal") with the energy bound that forbids flips.
 pub mod flipkernel;
 
+use crate::dynamics::general::{Load, TANGENT_SCRATCH};
 use crate::dynamics::system::{singular, ChainSystem, Form, OdeSystem, NON_FINITE};
 use crate::dynamics::torque::{Builtin, TorqueSource};
 use crate::dynamics::Workspace;
@@ -36,13 +37,28 @@ impl OdeSystem for Tangent<'_> {
         dy[..n].copy_from_slice(&y[n..2 * n]);
         let fail = |e| singular(t, y, e);
         let (head, tail) = dy.split_at_mut(2 * n);
-        self.chain.accelerations_into(&y[..n], &y[n..2 * n], &self.tau, &mut head[n..], &mut self.ws).map_err(fail)?;
+        let (theta, omega) = (&y[..n], &y[n..2 * n]);
+        if self.chain.lossy_joints() {
+            // Damping and friction: the general model's accelerations and exact tangents.
+            let load = Load::still(self.chain);
+            self.chain.accelerations_general(theta, omega, 0.0, &self.tau, &load, &mut head[n..], &mut self.ws).map_err(fail)?;
+            for j in 0..self.k {
+                let v = &y[2 * n * (j + 1)..2 * n * (j + 2)];
+                let dv = &mut tail[2 * n * j..2 * n * (j + 1)];
+                dv[..n].copy_from_slice(&v[n..]);
+                self.chain
+                    .tangent_general(theta, omega, (&head[n..], 0.0), &load, (&v[..n], &v[n..], 0.0), &mut dv[n..], &mut self.scratch, &mut self.ws)
+                    .map_err(fail)?;
+            }
+            return Ok(());
+        }
+        self.chain.accelerations_into(theta, omega, &self.tau, &mut head[n..], &mut self.ws).map_err(fail)?;
         for j in 0..self.k {
             let v = &y[2 * n * (j + 1)..2 * n * (j + 2)];
             let dv = &mut tail[2 * n * j..2 * n * (j + 1)];
             dv[..n].copy_from_slice(&v[n..]);
             self.chain
-                .tangent_accelerations_into(&y[..n], &y[n..2 * n], &head[n..], &v[..n], &v[n..], &mut dv[n..], &mut self.scratch, &mut self.ws)
+                .tangent_accelerations_into(theta, omega, &head[n..], &v[..n], &v[n..], &mut dv[n..], &mut self.scratch, &mut self.ws)
                 .map_err(fail)?;
         }
         Ok(())
@@ -91,7 +107,12 @@ pub fn lyapunov(
     if renorm_every == 0 {
         return Err(Error::input("renorm_every must be >= 1 step, got 0"));
     }
-    let mut sys = Tangent { chain, torque, k, ws: Workspace::new(n), tau: vec![0.0; n], scratch: vec![0.0; 6 * n] };
+    if chain.cart().is_some() {
+        return Err(Error::input(
+            "Lyapunov exponents are computed for chains on a fixed pivot, not on a cart (the cart's position is a neutral direction)",
+        ));
+    }
+    let mut sys = Tangent { chain, torque, k, ws: Workspace::new(n), tau: vec![0.0; n], scratch: vec![0.0; TANGENT_SCRATCH * n] };
     let d = sys.dim();
     let mut y = vec![0.0; d];
     y[..n].copy_from_slice(theta0);
@@ -188,7 +209,8 @@ pub fn first_flips(
     watch: &Watch,
 ) -> Result<Vec<f64>> {
     let steps = check_flips(chain, theta0, omega0, t_max, dt, link)?;
-    if chain.n() == 2 && matches!(torque, Builtin::None) {
+    // The kernel is the ideal double pendulum's; losses or a cart take the general path.
+    if chain.n() == 2 && matches!(torque, Builtin::None) && chain.is_ideal() {
         if let Some(path) = flipkernel::requested()? {
             return flipkernel::first_flips_double(chain, theta0, omega0, steps, dt, link, path, watch);
         }
@@ -275,7 +297,11 @@ pub fn first_flips_scalar(
         .par_chunks(n)
         .zip(omega0.par_chunks(n))
         .map_init(
-            || (ChainSystem::new(chain, torque.clone(), Form::Lagrangian), Rk4::new(2 * n + 1)),
+            || {
+                let sys = ChainSystem::new(chain, torque.clone(), Form::Lagrangian);
+                let d = sys.dim();
+                (sys, Rk4::new(d))
+            },
             |(sys, rk), (th, om)| {
                 watch.check(0.0)?;
                 let pi = std::f64::consts::PI;

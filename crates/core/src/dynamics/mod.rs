@@ -10,6 +10,8 @@
 //! Lagrangian form: `A(theta) theta_ddot = tau - g h sin(theta) - sum_b K_ab sin(theta_a - theta_b) omega_b^2`.
 //! Hamiltonian form: `theta_dot = A^-1 p`,
 //! `p_dot_a = tau_a - g h_a sin(theta_a) - omega_a sum_b K_ab sin(theta_a - theta_b) omega_b`.
+pub mod base;
+pub mod general;
 pub mod reference;
 pub mod rows;
 pub mod system;
@@ -32,6 +34,14 @@ impl Singular {
     pub fn reason(self) -> String {
         format!("the mass matrix is singular at link {} in this configuration", self.0)
     }
+}
+
+/// The x parts of the articulated inertia and bias at the base after [`Chain::eliminate`]
+/// (a cart moves along x only).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Articulated {
+    pub gxx: f64,
+    pub wx: f64,
 }
 
 /// Work buffers for one chain size; reuse one per thread in hot loops.
@@ -65,13 +75,17 @@ impl Chain {
     /// Backward elimination of `A x = r` (`x` holds `r` on entry, the reduced right-hand side
     /// `rho` on exit); the caller finishes with `substitute`. `extra(a)` is added to `r_a` just
     /// before it is used, so callers can fold in suffix sums over the links below `a`.
+    ///
+    /// Returns the whole chain as the base sees it: with `P_0` the base's acceleration (in the
+    /// `n` coordinates), `sum_b h_b n_b x_b = w - G P_0` (the articulated inertia `G` and bias
+    /// `w` at joint 0), which is what a cart needs.
     #[inline(always)]
     fn eliminate(
         &self,
         ws: &mut Workspace,
         x: &mut [f64],
         mut extra: impl FnMut(usize, f64, f64) -> f64,
-    ) -> Result<(), Singular> {
+    ) -> Result<Articulated, Singular> {
         let n = x.len();
         let (l, h, d) = (&self.lengths[..n], &self.h[..n], &self.diag[..n]);
         let (s, c, u, dinv) = (&ws.sin[..n], &ws.cos[..n], &mut ws.u[..n], &mut ws.dinv[..n]);
@@ -95,16 +109,22 @@ impl Chain {
             dinv[a] = inv;
             x[a] = rho;
         }
-        Ok(())
+        Ok(Articulated { gxx, wx })
     }
 
     /// Forward substitution after `eliminate`; `each(a, x_a, Px, Py)` sees each solved entry with
     /// the prefix sum `P_a = sum_{b<a} l_b n_b x_b` before `x_a` is added to it.
     #[inline(always)]
-    fn substitute(&self, ws: &Workspace, x: &mut [f64], mut each: impl FnMut(usize, f64, f64, f64)) {
+    fn substitute(&self, ws: &Workspace, x: &mut [f64], each: impl FnMut(usize, f64, f64, f64)) {
+        self.substitute_from(ws, x, 0.0, each)
+    }
+
+    /// [`Chain::substitute`] with the base accelerating along x at `base` (`P_0 = (base, 0)`: a cart).
+    #[inline(always)]
+    fn substitute_from(&self, ws: &Workspace, x: &mut [f64], base: f64, mut each: impl FnMut(usize, f64, f64, f64)) {
         let n = x.len();
         let (l, s, c, u, dinv) = (&self.lengths[..n], &ws.sin[..n], &ws.cos[..n], &ws.u[..n], &ws.dinv[..n]);
-        let (mut px, mut py) = (0.0, 0.0);
+        let (mut px, mut py) = (base, 0.0);
         for a in 0..n {
             let xa = (x[a] - (u[a][0] * px + u[a][1] * py)) * dinv[a];
             x[a] = xa;

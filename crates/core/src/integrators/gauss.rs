@@ -6,6 +6,10 @@
 //! 5–15 iterations. The stage equations are iterated until the increments stop decreasing at
 //! round-off (Hairer, McLachlan & Razakarivony 2008), starting from the previous step's
 //! collocation polynomial; the update uses compensated summation so round-off does not drift.
+//! Where fixed-point iteration stops contracting (stiff stages: strong damping, ill-scaled
+//! chains), the step's stages are solved by simplified Newton iteration with the system's exact
+//! Jacobian instead. With losses (damping, friction) the flow itself is not symplectic, nor is
+//! any integrator of it: the methods stay of order 2s.
 use serde::{Deserialize, Serialize};
 
 use super::dense::{Hermite, Slope};
@@ -19,6 +23,49 @@ pub const fn facts(stages: usize) -> Facts {
 }
 
 const MAX_ITERATIONS: usize = 100;
+
+/// LU factorisation with partial pivoting in place (row-major `m x m`); `None` if singular.
+fn lu_factor(a: &mut [f64], m: usize) -> Option<Vec<usize>> {
+    let mut piv = vec![0; m];
+    for k in 0..m {
+        let p = (k..m).max_by(|&i, &j| a[i * m + k].abs().total_cmp(&a[j * m + k].abs()))?;
+        piv[k] = p;
+        if !(a[p * m + k].abs() > 0.0) || !a[p * m + k].is_finite() {
+            return None;
+        }
+        if p != k {
+            for j in 0..m {
+                a.swap(k * m + j, p * m + j);
+            }
+        }
+        let inv = 1.0 / a[k * m + k];
+        for i in k + 1..m {
+            let f = a[i * m + k] * inv;
+            a[i * m + k] = f;
+            if f != 0.0 {
+                for j in k + 1..m {
+                    a[i * m + j] -= f * a[k * m + j];
+                }
+            }
+        }
+    }
+    Some(piv)
+}
+
+/// Solve with [`lu_factor`]'s result, `b` in place.
+fn lu_solve(lu: &[f64], piv: &[usize], b: &mut [f64], m: usize) {
+    for k in 0..m {
+        b.swap(k, piv[k]);
+        let bk = b[k];
+        for i in k + 1..m {
+            b[i] -= lu[i * m + k] * bk;
+        }
+    }
+    for k in (0..m).rev() {
+        let s: f64 = (k + 1..m).map(|j| lu[k * m + j] * b[j]).sum();
+        b[k] = (b[k] - s) / lu[k * m + k];
+    }
+}
 
 #[derive(Debug, Clone)]
 pub struct Gauss {
@@ -91,6 +138,117 @@ impl Gauss {
             iterations: 0,
             dense: Hermite::new(dim),
         }
+    }
+
+    /// The stage slopes `k` by fixed-point iteration from their guess: converged (`true`), or
+    /// not contracting (the increments grew three times in a row above round-off, left the
+    /// finite numbers, or a stage left the chain's domain).
+    fn fixed_point<S: OdeSystem>(&mut self, sys: &mut S, t: f64, y: &[f64], h: f64) -> Result<bool> {
+        let (s, d) = (self.s, y.len());
+        let (mut prev, mut growing) = (f64::INFINITY, 0);
+        for _ in 0..MAX_ITERATIONS {
+            self.iterations += 1;
+            for i in 0..s {
+                for m in 0..d {
+                    let z: f64 = (0..s).map(|j| self.a[i][j] * self.k[j * d + m]).sum();
+                    self.stage[m] = y[m] + h * z;
+                }
+                match sys.rhs(t + self.c[i] * h, &self.stage, &mut self.k_new[i * d..(i + 1) * d]) {
+                    Err(Error::Integration { .. }) => return Ok(false),
+                    other => other?,
+                }
+            }
+            let mut delta = 0.0f64;
+            for i in 0..s {
+                for m in 0..d {
+                    let change = h * (self.k_new[i * d + m] - self.k[i * d + m]);
+                    delta = delta.max(change.abs() / y[m].abs().max(1.0));
+                }
+            }
+            std::mem::swap(&mut self.k, &mut self.k_new);
+            if !delta.is_finite() {
+                return Ok(false);
+            }
+            // Converged once the increments vanish or stop shrinking at round-off level.
+            if delta == 0.0 || (delta >= prev && delta < 1e-13) {
+                return Ok(true);
+            }
+            growing = if delta > prev { growing + 1 } else { 0 };
+            if growing >= 3 {
+                return Ok(false);
+            }
+            prev = delta;
+        }
+        Ok(false)
+    }
+
+    /// The stage slopes by simplified Newton iteration with the system's exact Jacobian at the
+    /// step's start (Hairer & Wanner, Solving ODEs II, sec. IV.8): the iteration matrix
+    /// `I - h A (x) J` of the `s d` stage unknowns is factored once per step. For stiff stages
+    /// (strong damping, ill-scaled chains) where fixed-point iteration diverges. `false` when the
+    /// system has no Jacobian or the iteration does not converge either.
+    fn newton<S: OdeSystem>(&mut self, sys: &mut S, t: f64, y: &[f64], h: f64) -> Result<bool> {
+        let (s, d) = (self.s, y.len());
+        let mut jac = vec![0.0; d * d];
+        if !sys.jacobian(t, y, &mut jac)? {
+            return Ok(false);
+        }
+        let m = s * d;
+        let mut lu = vec![0.0; m * m];
+        for i in 0..s {
+            for j in 0..s {
+                let a = h * self.a[i][j];
+                for r in 0..d {
+                    for c in 0..d {
+                        lu[(i * d + r) * m + j * d + c] = -a * jac[r * d + c];
+                    }
+                }
+            }
+        }
+        for k in 0..m {
+            lu[k * m + k] += 1.0;
+        }
+        let Some(pivots) = lu_factor(&mut lu, m) else { return Ok(false) };
+        let (first, rest) = self.k.split_at_mut(d);
+        sys.rhs(t, y, first)?;
+        for i in 1..s {
+            rest[(i - 1) * d..i * d].copy_from_slice(first);
+        }
+        let mut prev = f64::INFINITY;
+        for _ in 0..MAX_ITERATIONS {
+            self.iterations += 1;
+            for i in 0..s {
+                for m in 0..d {
+                    let z: f64 = (0..s).map(|j| self.a[i][j] * self.k[j * d + m]).sum();
+                    self.stage[m] = y[m] + h * z;
+                }
+                let out = &mut self.k_new[i * d..(i + 1) * d];
+                match sys.rhs(t + self.c[i] * h, &self.stage, out) {
+                    Err(Error::Integration { .. }) => return Ok(false),
+                    other => other?,
+                }
+                for (o, k) in out.iter_mut().zip(&self.k[i * d..(i + 1) * d]) {
+                    *o -= k;
+                }
+            }
+            lu_solve(&lu, &pivots, &mut self.k_new, m);
+            let mut delta = 0.0f64;
+            for i in 0..s {
+                for m in 0..d {
+                    let change = self.k_new[i * d + m];
+                    if !change.is_finite() {
+                        return Ok(false);
+                    }
+                    self.k[i * d + m] += change;
+                    delta = delta.max((h * change).abs() / y[m].abs().max(1.0));
+                }
+            }
+            if delta == 0.0 || (delta >= prev && delta < 1e-13) {
+                return Ok(true);
+            }
+            prev = delta;
+        }
+        Ok(false)
     }
 
     pub fn name(&self) -> &'static str {
@@ -173,34 +331,9 @@ impl Integrator for Gauss {
                 rest[(i - 1) * d..i * d].copy_from_slice(first);
             }
         }
-        let mut prev = f64::INFINITY;
-        let mut converged = false;
-        for _ in 0..MAX_ITERATIONS {
-            self.iterations += 1;
-            for i in 0..s {
-                for m in 0..d {
-                    let z: f64 = (0..s).map(|j| self.a[i][j] * self.k[j * d + m]).sum();
-                    self.stage[m] = y[m] + h * z;
-                }
-                sys.rhs(t + self.c[i] * h, &self.stage, &mut self.k_new[i * d..(i + 1) * d])?;
-            }
-            let mut delta = 0.0f64;
-            for i in 0..s {
-                for m in 0..d {
-                    let change = h * (self.k_new[i * d + m] - self.k[i * d + m]);
-                    delta = delta.max(change.abs() / y[m].abs().max(1.0));
-                }
-            }
-            std::mem::swap(&mut self.k, &mut self.k_new);
-            if !delta.is_finite() {
-                break;
-            }
-            // Converged once the increments vanish or stop shrinking at round-off level.
-            if delta == 0.0 || (delta >= prev && delta < 1e-13) {
-                converged = true;
-                break;
-            }
-            prev = delta;
+        let mut converged = self.fixed_point(sys, t, y, h)?;
+        if !converged {
+            converged = self.newton(sys, t, y, h)?;
         }
         if !converged {
             self.last_h = None;

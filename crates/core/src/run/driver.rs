@@ -68,6 +68,10 @@ impl<S: OdeSystem> OdeSystem for Counted<S> {
         self.n += 1;
         self.sys.rhs(t, y, dy)
     }
+
+    fn jacobian(&mut self, t: f64, y: &[f64], out: &mut [f64]) -> Result<bool> {
+        self.sys.jacobian(t, y, out)
+    }
 }
 
 /// Number of fixed steps to reach `t_end`; the last one is shortened when `dt` does not divide it.

@@ -25,6 +25,11 @@ impl EnergyBalance {
         EnergyBalance { e0: kinetic0 + potential0, well: chain.potential_depth(), kinetic_max: kinetic0 }
     }
 
+    /// From the initial state's kinetic and total energies.
+    pub fn from_energy(chain: &Chain, kinetic0: f64, energy0: f64) -> Self {
+        EnergyBalance { e0: energy0, well: chain.potential_depth(), kinetic_max: kinetic0 }
+    }
+
     pub fn initial_energy(&self) -> f64 {
         self.e0
     }

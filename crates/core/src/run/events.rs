@@ -123,7 +123,8 @@ impl<'a> Tracker<'a> {
         let omega: &[f64] = match self.form {
             Form::Lagrangian => &y[n..2 * n],
             Form::Hamiltonian => {
-                if self.chain.velocities_into(theta, &y[n..2 * n], &mut self.omega, &mut self.ws).is_err() {
+                let p_x = if self.chain.cart().is_some() { y[2 * n + 1] } else { 0.0 };
+                if self.chain.velocities_general(theta, &y[n..2 * n], p_x, &mut self.omega, &mut self.ws).is_err() {
                     self.omega.fill(f64::NAN);
                 }
                 &self.omega

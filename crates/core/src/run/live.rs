@@ -6,8 +6,8 @@
 //! on each target exactly.
 use super::driver::Run;
 use super::energy::EnergyBalance;
-use super::simulate::{fill_rates, Settings};
-use crate::dynamics::system::{ChainSystem, Form, OdeSystem};
+use super::simulate::{fill_rates, initial_state, Books, Settings, Terms};
+use crate::dynamics::system::{ChainSystem, Form};
 use crate::dynamics::torque::TorqueSource;
 use crate::dynamics::Workspace;
 use crate::error::{Error, Result};
@@ -19,10 +19,10 @@ pub struct Stepper<T> {
     run: Run<ChainSystem<Chain, T>>,
     form: Form,
     balance: EnergyBalance,
+    books: Books,
     ws: Workspace,
     omega: Vec<f64>,
     p: Vec<f64>,
-    scratch: Vec<f64>,
 }
 
 impl<T: TorqueSource> Stepper<T> {
@@ -37,19 +37,14 @@ impl<T: TorqueSource> Stepper<T> {
         checked.validate(f64::MAX)?;
         let form = settings.resolved_form()?;
         let n = chain.n();
-        let mut ws = Workspace::new(n);
-        let mut scratch = vec![0.0; n];
-        let balance = EnergyBalance::new(&chain, chain.kinetic_energy(theta0, omega0, &mut scratch, &mut ws), chain.potential_energy(theta0));
-        let sys = ChainSystem::new(chain, torque, form);
-        let mut y = vec![0.0; sys.dim()];
-        y[..n].copy_from_slice(theta0);
-        match form {
-            Form::Lagrangian => y[n..2 * n].copy_from_slice(omega0),
-            Form::Hamiltonian => sys.chain().momenta_into(theta0, omega0, &mut y[n..2 * n], &mut ws),
-        }
+        let sys = ChainSystem::new(chain, torque, form).with_drive(settings.drive.clone())?;
+        let y = initial_state(sys.chain(), form, sys.layout(), theta0, omega0, settings.cart0);
+        let mut books = Books::new(sys.chain(), form, sys.layout());
+        let first = books.terms(sys.chain(), sys.drive(), 0.0, &y)?;
+        let balance = EnergyBalance::from_energy(sys.chain(), first.kinetic, first.energy);
         let config = crate::run::driver::Config { max_steps: u64::MAX, ..settings.config(None) };
         let run = Run::new(sys, y, &config)?;
-        Ok(Stepper { run, form, balance, ws, omega: omega0.to_vec(), p: vec![0.0; n], scratch })
+        Ok(Stepper { run, form, balance, books, ws: Workspace::new(n), omega: omega0.to_vec(), p: vec![0.0; n] })
     }
 
     /// Advance towards `t_target`, taking at most `max_steps` accepted steps. Returns `true` once
@@ -91,17 +86,18 @@ impl<T: TorqueSource> Stepper<T> {
         &self.omega
     }
 
-    fn kinetic(&mut self) -> f64 {
-        self.omega();
-        let n = self.n();
-        let chain = self.run.system().chain();
-        chain.kinetic_energy(&self.run.y()[..n], &self.omega, &mut self.scratch, &mut self.ws)
+    /// The energy terms of the current state: lab-frame kinetic and total energy, the work of
+    /// the torques, the pivot and the cart force, the energy dissipated, since t = 0. (The
+    /// pivot's own motion is a function of time and cannot fail but through a user function.)
+    pub fn terms(&mut self) -> Result<Terms> {
+        let Stepper { run, books, .. } = self;
+        let (t, sys) = (run.t(), run.system());
+        books.terms(sys.chain(), sys.drive(), t, run.y())
     }
 
-    /// Energy `T + U` of the current state.
+    /// Energy (lab frame) of the current state; NaN if a user's pivot function fails.
     pub fn energy(&mut self) -> f64 {
-        let kinetic = self.kinetic();
-        kinetic + self.chain().potential_energy(self.theta())
+        self.terms().map_or(f64::NAN, |t| t.energy)
     }
 
     pub fn initial_energy(&self) -> f64 {
@@ -110,16 +106,38 @@ impl<T: TorqueSource> Stepper<T> {
 
     /// Work done by the torque since t = 0 (zero without one).
     pub fn work(&self) -> f64 {
-        self.run.y().get(2 * self.n()).copied().unwrap_or(0.0)
+        self.run.system().layout().torque_work().map_or(0.0, |i| self.run.y()[i])
+    }
+
+    /// The cart's position and velocity (zeros without a cart).
+    pub fn cart(&mut self) -> (f64, f64) {
+        let Some(i) = self.run.system().layout().cart() else { return (0.0, 0.0) };
+        let x = self.run.y()[i];
+        (x, self.terms().map_or(f64::NAN, |t| t.cart_v))
+    }
+
+    /// The pivot's position now (the origin when it is fixed).
+    pub fn pivot(&self) -> [f64; 2] {
+        self.run.system().pivot_motion(self.t()).map_or([f64::NAN; 2], |m| m.pos)
+    }
+
+    /// Replace the base's drive between steps (the viewer's dragged pivot, an environment's
+    /// cart force); the integrator restarts from the current state.
+    /// The energy balance stays exact when the new drive continues the old one's position and
+    /// velocity at the switch.
+    pub fn set_drive(&mut self, drive: crate::dynamics::base::Drive) -> Result<()> {
+        self.run.system_mut().replace_drive(drive)?;
+        let y = self.run.y().to_vec();
+        self.run.set_state(&y)
     }
 
     /// The energy error of the current state as [`super::energy`] defines it, this state
     /// counting as an output (its kinetic energy joins the scale).
     pub fn energy_error(&mut self) -> f64 {
-        let kinetic = self.kinetic();
-        let energy = kinetic + self.chain().potential_energy(self.theta());
-        let work = self.work();
-        self.balance.observe(kinetic, energy, work)
+        match self.terms() {
+            Ok(t) => self.balance.observe(t.kinetic, t.energy, t.torque + t.pivot + t.cart - t.dissipated),
+            Err(_) => f64::NAN,
+        }
     }
 
     /// Joint positions of the current state, `2N` values (x then y of each link's far end).

@@ -7,7 +7,8 @@ use serde::{Deserialize, Serialize};
 use super::driver::{fixed_steps, Config, Run, State};
 use super::energy::EnergyBalance;
 use super::events::{EventSpec, Hit, Tracker};
-use crate::dynamics::system::{check_finite_state, ChainSystem, Form, OdeSystem};
+use crate::dynamics::base::Drive;
+use crate::dynamics::system::{check_finite_state, ChainSystem, Form, Layout, OdeSystem};
 use crate::dynamics::torque::TorqueSource;
 use crate::dynamics::Workspace;
 use crate::error::{Error, Result};
@@ -34,6 +35,10 @@ pub struct Settings {
     pub max_steps: u64,
     /// Conditions whose zero crossings are recorded, or stop the run (terminal).
     pub events: Vec<EventSpec>,
+    /// What moves the base: a prescribed pivot motion, or the force on the chain's cart.
+    pub drive: Drive,
+    /// The cart's initial position and velocity (every trajectory of a batch), with a cart.
+    pub cart0: [f64; 2],
 }
 
 /// The defaults of a run, stated once (Python, the CLI, scenario files and the viewer read them).
@@ -58,6 +63,8 @@ impl Default for Settings {
             t_eval: None,
             max_steps: defaults::MAX_STEPS,
             events: Vec::new(),
+            drive: Drive::none(),
+            cart0: [0.0, 0.0],
         }
     }
 }
@@ -81,8 +88,20 @@ pub struct Trajectory {
     pub theta: Vec<f64>,
     pub omega: Vec<f64>,
     pub p: Vec<f64>,
+    /// The lab-frame energy: with the pivot's or the cart's motion.
     pub energy: Vec<f64>,
+    /// The work done by the torques since t = 0.
     pub work: Vec<f64>,
+    /// The work done by the moving pivot, by the cart force, and the energy dissipated by the
+    /// joints and the cart since t = 0 (empty when the run has none).
+    pub work_pivot: Vec<f64>,
+    pub work_cart: Vec<f64>,
+    pub dissipated: Vec<f64>,
+    /// The cart's position and velocity (empty without a cart).
+    pub cart_x: Vec<f64>,
+    pub cart_v: Vec<f64>,
+    /// The pivot's position, `(x, y)` per row (empty when it is fixed at the origin).
+    pub pivot: Vec<f64>,
     /// The energy error of each output ([`super::energy`]).
     pub energy_error: Vec<f64>,
     pub stats: Stats,
@@ -385,6 +404,7 @@ pub fn simulate_from<T: TorqueSource>(
         chain.check_state("theta0", theta0)?;
         chain.check_state("omega0", omega0)?;
     }
+    check_cart0(chain, settings)?;
     let rows = settings.validate(t_end)?;
     check_output_size(rows as f64, chain.n())?;
     check_fixed_steps(settings, t_end)?;
@@ -400,7 +420,7 @@ pub fn simulate_from<T: TorqueSource>(
     if !settings.events.is_empty() && (resume.is_some() || checkpoints.is_some()) {
         return Err(Error::input("checkpoints cannot be combined with events (the event tracker's state is not saved)"));
     }
-    let sys = ChainSystem::new(chain, torque, form);
+    let sys = ChainSystem::new(chain, torque, form).with_drive(settings.drive.clone())?;
     let (d, config) = (sys.dim(), settings.config(Some(t_end)));
     // One monomorphised loop per method: the integrator's own type, not a dispatch per step.
     match settings.method {
@@ -427,21 +447,15 @@ fn drive<T: TorqueSource, I: Integrator>(
     mut checkpoints: Option<&mut Checkpoints>,
     rows: usize,
 ) -> Result<Trajectory> {
-    let (n, form) = (chain.n(), sys.form());
+    let (n, form, layout) = (chain.n(), sys.form(), sys.layout());
     let resume = matches!(start, Start::Resume(_));
-    let tracks_work = sys.tracks_work();
     let d = sys.dim();
     let config = settings.config(Some(t_end));
     let t_eval = settings.t_eval.as_deref();
     let mut tracker = Tracker::new(&settings.events, chain, form);
     let (mut run, initial, mut rec) = match start {
         Start::Initial { theta0, omega0 } => {
-            let mut y = vec![0.0; d];
-            y[..n].copy_from_slice(theta0);
-            match form {
-                Form::Lagrangian => y[n..2 * n].copy_from_slice(omega0),
-                Form::Hamiltonian => chain.momenta_into(theta0, omega0, &mut y[n..2 * n], &mut Workspace::new(n)),
-            }
+            let y = initial_state(chain, form, layout, theta0, omega0, settings.cart0);
             tracker.start(0.0, &y)?;
             let rows = t_eval.map_or(if settings.method.adaptive() { 0 } else { rows }, <[f64]>::len);
             let rec = Recorder { t: Vec::with_capacity(rows), y: Vec::with_capacity(rows * d), ..Recorder::default() };
@@ -454,7 +468,7 @@ fn drive<T: TorqueSource, I: Integrator>(
                      ({n} links, form {}{})",
                     cp.run.y.len(),
                     form.name(),
-                    if tracks_work { ", with the torque's work" } else { "" }
+                    describe(layout)
                 )));
             }
             let bad = |what: String| Err(Error::input(format!("the checkpoint does not fit this run: {what}")));
@@ -550,34 +564,109 @@ fn drive<T: TorqueSource, I: Integrator>(
     let (steps, rejected, evaluations, iterations) = run.counters();
     let stats = Stats { steps, rejected, evaluations, iterations, energy_error: 0.0 };
     let hits = std::mem::take(&mut tracker.hits);
-    Ok(finish(chain, form, tracks_work, &initial, rec, hits, stats))
+    finish(chain, form, layout, &settings.drive, &initial, rec, hits, stats)
 }
 
-/// `omega` and `p` of a raw ODE state `y = [theta, omega or p, ...]` in the given form.
-pub(crate) fn fill_rates(chain: &Chain, form: Form, y: &[f64], omega: &mut [f64], p: &mut [f64], ws: &mut Workspace) {
+/// What a state holds besides the angles and their rates (for messages).
+fn describe(layout: Layout) -> String {
+    let parts: Vec<&str> = [
+        (layout.cart, "a cart"),
+        (layout.torque, "the torque's work"),
+        (layout.pivot, "the pivot's work"),
+        (layout.force, "the cart force's work"),
+        (layout.losses, "the energy dissipated"),
+    ]
+    .iter()
+    .filter(|(on, _)| *on)
+    .map(|(_, what)| *what)
+    .collect();
+    if parts.is_empty() {
+        String::new()
+    } else {
+        format!(", with {}", parts.join(", "))
+    }
+}
+
+/// The cart's initial state must be finite (and is only meaningful with a cart).
+fn check_cart0(chain: &Chain, settings: &Settings) -> Result<()> {
+    crate::error::check_finite("cart state (cart_x0, cart_v0)", &settings.cart0)?;
+    if chain.cart().is_none() && settings.cart0 != [0.0, 0.0] {
+        return Err(Error::input("cart_x0 and cart_v0 need a chain with a cart (Chain(..., cart=Cart(mass)))"));
+    }
+    Ok(())
+}
+
+/// The raw ODE state at t = 0 (the tracked energy terms start at zero).
+pub(crate) fn initial_state(chain: &Chain, form: Form, layout: Layout, theta0: &[f64], omega0: &[f64], cart0: [f64; 2]) -> Vec<f64> {
+    let n = chain.n();
+    let mut y = vec![0.0; layout.dim()];
+    y[..n].copy_from_slice(theta0);
+    let mut ws = Workspace::new(n);
+    match form {
+        Form::Lagrangian => y[n..2 * n].copy_from_slice(omega0),
+        Form::Hamiltonian => {
+            let px = chain.momenta_general(theta0, omega0, cart0[1], &mut y[n..2 * n], &mut ws);
+            if let Some(i) = layout.cart() {
+                y[i + 1] = px;
+            }
+        }
+    }
+    if let Some(i) = layout.cart() {
+        y[i] = cart0[0];
+        if form == Form::Lagrangian {
+            y[i + 1] = cart0[1];
+        }
+    }
+    y
+}
+
+/// `omega` and `p` of a raw ODE state `y = [theta, omega or p, (x, v or p_x), ...]` in the
+/// given form; returns the cart's `(v, p_x)` (zeros without a cart).
+pub(crate) fn fill_rates(chain: &Chain, form: Form, y: &[f64], omega: &mut [f64], p: &mut [f64], ws: &mut Workspace) -> (f64, f64) {
     let n = chain.n();
     let theta = &y[..n];
+    let cart = chain.cart().is_some();
     match form {
         Form::Lagrangian => {
             omega.copy_from_slice(&y[n..2 * n]);
-            chain.momenta_into(theta, omega, p, ws);
+            if !cart {
+                chain.momenta_into(theta, omega, p, ws);
+                return (0.0, 0.0);
+            }
+            let v = y[2 * n + 1];
+            (v, chain.momenta_general(theta, omega, v, p, ws))
         }
         Form::Hamiltonian => {
             p.copy_from_slice(&y[n..2 * n]);
+            let px = if cart { y[2 * n + 1] } else { 0.0 };
             // Cannot fail: the same state passed through the right-hand side.
-            if chain.velocities_into(theta, p, omega, ws).is_err() {
-                omega.fill(f64::NAN);
+            match chain.velocities_general(theta, p, px, omega, ws) {
+                Ok(v) => (v, px),
+                Err(_) => {
+                    omega.fill(f64::NAN);
+                    (f64::NAN, px)
+                }
             }
         }
     }
 }
 
 /// Turn raw ODE states into theta, omega, p, energy, work and energy-error rows.
-fn finish(chain: &Chain, form: Form, work: bool, initial: &[f64], rec: Recorder, hits: Vec<Hit>, mut stats: Stats) -> Trajectory {
+#[allow(clippy::too_many_arguments)]
+fn finish(
+    chain: &Chain,
+    form: Form,
+    layout: Layout,
+    drive: &Drive,
+    initial: &[f64],
+    rec: Recorder,
+    hits: Vec<Hit>,
+    mut stats: Stats,
+) -> Result<Trajectory> {
     let n = chain.n();
-    let mut ws = Workspace::new(n);
-    let d = 2 * n + usize::from(work);
+    let d = layout.dim();
     let rows = rec.t.len();
+    let some = |on: bool| if on { Vec::with_capacity(rows) } else { Vec::new() };
     let mut tr = Trajectory {
         n,
         theta: Vec::with_capacity(rows * n),
@@ -585,31 +674,48 @@ fn finish(chain: &Chain, form: Form, work: bool, initial: &[f64], rec: Recorder,
         p: vec![0.0; rows * n],
         energy: Vec::with_capacity(rows),
         work: Vec::with_capacity(rows),
+        work_pivot: some(layout.pivot),
+        work_cart: some(layout.force),
+        dissipated: some(layout.losses),
+        cart_x: some(layout.cart),
+        cart_v: some(layout.cart),
+        pivot: if layout.pivot { Vec::with_capacity(2 * rows) } else { Vec::new() },
         energy_error: Vec::with_capacity(rows),
-        t: rec.t,
+        t: Vec::new(),
         stats: Stats::default(),
         form,
         events: Vec::with_capacity(hits.len()),
         stopped_at: rec.stopped_at,
     };
-    let mut scratch = vec![0.0; n];
-    let (mut omega0, mut p0) = (vec![0.0; n], vec![0.0; n]);
-    fill_rates(chain, form, initial, &mut omega0, &mut p0, &mut ws);
-    let theta0 = &initial[..n];
-    let mut balance = EnergyBalance::new(chain, chain.kinetic_energy(theta0, &omega0, &mut scratch, &mut ws), chain.potential_energy(theta0));
+    let mut books = Books::new(chain, form, layout);
+    let first = books.terms(chain, drive, 0.0, initial)?;
+    let mut balance = EnergyBalance::from_energy(chain, first.kinetic, first.energy);
     for r in 0..rows {
         let y = &rec.y[r * d..(r + 1) * d];
-        let theta = &y[..n];
-        tr.theta.extend_from_slice(theta);
-        let (omega, p) = (&mut tr.omega[r * n..(r + 1) * n], &mut tr.p[r * n..(r + 1) * n]);
-        fill_rates(chain, form, y, omega, p, &mut ws);
-        let kinetic = chain.kinetic_energy(theta, omega, &mut scratch, &mut ws);
-        let energy = kinetic + chain.potential_energy(theta);
-        let w = if work { y[2 * n] } else { 0.0 };
-        tr.energy.push(energy);
-        tr.work.push(w);
-        tr.energy_error.push(balance.observe(kinetic, energy, w));
+        tr.theta.extend_from_slice(&y[..n]);
+        let terms = books.terms(chain, drive, rec.t[r], y)?;
+        tr.omega[r * n..(r + 1) * n].copy_from_slice(&books.omega);
+        tr.p[r * n..(r + 1) * n].copy_from_slice(&books.p);
+        tr.energy.push(terms.energy);
+        tr.work.push(terms.torque);
+        if layout.pivot {
+            tr.work_pivot.push(terms.pivot);
+            tr.pivot.extend_from_slice(&terms.pivot_pos);
+        }
+        if layout.force {
+            tr.work_cart.push(terms.cart);
+        }
+        if layout.losses {
+            tr.dissipated.push(terms.dissipated);
+        }
+        if let Some(i) = layout.cart() {
+            tr.cart_x.push(y[i]);
+            tr.cart_v.push(terms.cart_v);
+        }
+        tr.energy_error.push(balance.observe(terms.kinetic, terms.energy, terms.torque + terms.pivot + terms.cart - terms.dissipated));
     }
+    tr.t = rec.t;
+    let mut ws = Workspace::new(n);
     for hit in hits {
         let theta = hit.y[..n].to_vec();
         let (mut omega, mut p) = (vec![0.0; n], vec![0.0; n]);
@@ -618,7 +724,73 @@ fn finish(chain: &Chain, form: Form, work: bool, initial: &[f64], rec: Recorder,
     }
     stats.energy_error = tr.energy_error.iter().copied().fold(0.0, f64::max);
     tr.stats = stats;
-    tr
+    Ok(tr)
+}
+
+/// The energy terms of one output: the lab-frame kinetic and total energies, the work of the
+/// torques, the pivot and the cart force, and the energy dissipated since t = 0; with the cart's
+/// velocity and the pivot's position.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Terms {
+    pub kinetic: f64,
+    pub energy: f64,
+    pub torque: f64,
+    pub pivot: f64,
+    pub cart: f64,
+    pub dissipated: f64,
+    pub cart_v: f64,
+    pub pivot_pos: [f64; 2],
+}
+
+/// Reads the energy terms off raw ODE states: the lab-frame kinetic and total energy and the
+/// work terms of [`super::energy`]. The pivot's work is
+/// `W_pivot = [v_p . R_dot + M |v_p|^2 / 2 + g M y_p]_0^t - int a_p . R_dot dt`
+/// (the integral is in the state; `R_dot = sum_b h_b omega_b (cos, sin)(theta_b)` is the links'
+/// momentum relative to the pivot), which makes `E(t) - E(0) = W_torque + W_pivot + W_cart - D`
+/// exact.
+pub(crate) struct Books {
+    form: Form,
+    layout: Layout,
+    ws: Workspace,
+    scratch: Vec<f64>,
+    pub omega: Vec<f64>,
+    pub p: Vec<f64>,
+    /// The pivot's boundary term at t = 0.
+    boundary0: Option<f64>,
+}
+
+impl Books {
+    pub fn new(chain: &Chain, form: Form, layout: Layout) -> Self {
+        let n = chain.n();
+        Books { form, layout, ws: Workspace::new(n), scratch: vec![0.0; n], omega: vec![0.0; n], p: vec![0.0; n], boundary0: None }
+    }
+
+    /// The terms of state `y` at `t` (the first call must be the run's initial state).
+    pub fn terms(&mut self, chain: &Chain, drive: &Drive, t: f64, y: &[f64]) -> Result<Terms> {
+        let (n, lay) = (chain.n(), self.layout);
+        let theta = &y[..n];
+        let (v, _) = fill_rates(chain, self.form, y, &mut self.omega, &mut self.p, &mut self.ws);
+        let at = |i: Option<usize>| i.map_or(0.0, |i| y[i]);
+        let mut out = Terms { torque: at(lay.torque_work()), cart: at(lay.force_work()), dissipated: at(lay.dissipated()), cart_v: v, ..Terms::default() };
+        if lay.pivot {
+            let motion = drive.moving_pivot().map_or(Ok(Default::default()), |p| p.eval(t))?;
+            let kinetic = chain.kinetic_energy_moving(theta, &self.omega, motion.vel, &mut self.scratch, &mut self.ws);
+            let r = chain.momentum_relative_cached(&self.omega, &self.ws);
+            let m = chain.total_mass();
+            let (vp, yp) = (motion.vel, motion.pos[1]);
+            let boundary = vp[0] * r[0] + vp[1] * r[1] + 0.5 * m * (vp[0] * vp[0] + vp[1] * vp[1]) + chain.g() * m * yp;
+            let b0 = *self.boundary0.get_or_insert(boundary);
+            out.kinetic = kinetic;
+            out.energy = kinetic + chain.potential_energy_moving(theta, yp);
+            out.pivot = boundary - b0 + at(lay.pivot_work());
+            out.pivot_pos = motion.pos;
+        } else {
+            let base_v = if lay.cart { [v, 0.0] } else { [0.0, 0.0] };
+            out.kinetic = chain.kinetic_energy_moving(theta, &self.omega, base_v, &mut self.scratch, &mut self.ws);
+            out.energy = out.kinetic + chain.potential_energy(theta);
+        }
+        Ok(out)
+    }
 }
 
 /// The number of trajectories in rows of `theta0` and `omega0` (B x N each).
