@@ -11,6 +11,9 @@ pub struct MethodFacts {
     pub name: &'static str,
     pub order: u32,
     pub symplectic: bool,
+    /// When the symplecticity holds (empty for the other methods): losses make the flow itself
+    /// contract phase space, and no one-step map of it is symplectic.
+    pub symplectic_when: &'static str,
     pub implicit: bool,
     pub adaptive: bool,
     /// Whether a run needs `dt` (else it is the optional first step).
@@ -18,6 +21,10 @@ pub struct MethodFacts {
     /// The forms it integrates; the first is its default.
     pub forms: Vec<&'static str>,
 }
+
+/// The condition of the symplectic methods' symplecticity.
+pub const SYMPLECTIC_WHEN: &str =
+    "on conservative chains (no damping or friction; torques and a moving pivot are allowed): with losses they stay of their order but are no longer symplectic";
 
 pub fn methods() -> Vec<MethodFacts> {
     Method::ALL
@@ -28,6 +35,7 @@ pub fn methods() -> Vec<MethodFacts> {
                 name: m.name(),
                 order: f.order,
                 symplectic: f.symplectic,
+                symplectic_when: if f.symplectic { SYMPLECTIC_WHEN } else { "" },
                 implicit: f.implicit,
                 adaptive: f.adaptive,
                 needs_dt: m.needs_dt(),

@@ -17,6 +17,7 @@ pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
         let d = PyDict::new(py);
         d.set_item("order", f.order)?;
         d.set_item("symplectic", f.symplectic)?;
+        d.set_item("symplectic_when", f.symplectic_when)?;
         d.set_item("implicit", f.implicit)?;
         d.set_item("adaptive", f.adaptive)?;
         d.set_item("needs_dt", f.needs_dt)?;

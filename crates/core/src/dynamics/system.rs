@@ -256,7 +256,7 @@ impl<C: Borrow<Chain>, T: TorqueSource> ChainSystem<C, T> {
                 }
                 if let Some(f) = drive.force.as_mut() {
                     if f.is_feedback() {
-                        fill_state(state, x, theta, v, omega);
+                        fill_state(t, state, x, theta, v, omega)?;
                     }
                     load.cart_force = f.eval(t, state)?;
                 }
@@ -278,7 +278,7 @@ impl<C: Borrow<Chain>, T: TorqueSource> ChainSystem<C, T> {
                         out.copy_from_slice(tau);
                         if let Some(f) = drive.force.as_mut() {
                             if f.is_feedback() {
-                                fill_state(state, x, theta, v, omega);
+                                fill_state(t, state, x, theta, v, omega)?;
                             }
                             force = f.eval(t, state)?;
                         }
@@ -389,13 +389,15 @@ impl<C: Borrow<Chain>, T: TorqueSource> ChainSystem<C, T> {
     }
 }
 
-/// `(x, theta, v, omega)` into `state` (a feedback cart force's argument).
-fn fill_state(state: &mut [f64], x: f64, theta: &[f64], v: f64, omega: &[f64]) {
+/// `(x, theta, v, omega)` into `state` (a feedback cart force's argument): a state that blew
+/// up is the integration's failure, not the user function's.
+fn fill_state(t: f64, state: &mut [f64], x: f64, theta: &[f64], v: f64, omega: &[f64]) -> Result<()> {
     let n = theta.len();
     state[0] = x;
     state[1..=n].copy_from_slice(theta);
     state[n + 1] = v;
     state[n + 2..2 * n + 2].copy_from_slice(omega);
+    check_finite_state(t, state)
 }
 
 impl<C: Borrow<Chain>, T: TorqueSource> OdeSystem for ChainSystem<C, T> {
