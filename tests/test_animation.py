@@ -256,3 +256,166 @@ def test_long_titles_are_wrapped_inside_the_frame_and_the_plots(sol):
     finally:
         for fig in plots:
             plt.close(fig)
+
+
+# ---------------------------------------------------------------------------------------------
+# A moving pivot and a cart are drawn where the run put them
+
+
+@pytest.fixture(scope="module")
+def cart_sol():
+    chain = mp.Chain.rods([1.0, 0.8], [1.0, 0.5], cart=mp.Cart(1.0, damping=0.2), damping=0.05)
+    return mp.simulate(chain, [2.4, 2.0], [0.0, 0.0], 3.0, cart_force=mp.Sinusoid(4.0, 2.0),
+                       t_eval=np.linspace(0, 3.0, 31))
+
+
+@pytest.fixture(scope="module")
+def pivot_sol():
+    chain = mp.Chain([1.0], [1.0], damping=0.1)
+    pivot = mp.Pivot(x=mp.Sinusoid(0.6, 2.5), y=mp.Sinusoid(0.3, 5.0, phase=1.0))
+    return mp.simulate(chain, [0.5], [0.0], 2.0, pivot=pivot, t_eval=np.linspace(0, 2.0, 21))
+
+
+def _draw_at_samples(sol):
+    """A painter and the frames drawn at the run's own sample times (frame k = sample k)."""
+    from multipendulum.animation import _frame_positions
+    from multipendulum.plotting import base_motion
+
+    view = base_motion(sol, series(sol))
+    painter = _Painter(view, dpi=60, size=5.0, title=None, speed=1.0)
+    joints, bases = _frame_positions(view, sol.t)
+    return painter, joints, bases
+
+
+def test_the_cart_block_sits_at_the_runs_cart_position_in_every_frame(cart_sol):
+    sol = cart_sol
+    assert np.ptp(sol.cart_x) > 0.3  # the cart travels
+    painter, joints, bases = _draw_at_samples(sol)
+    np.testing.assert_allclose(bases, sol.pivot, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(joints, sol.positions, rtol=0, atol=1e-12)
+    w, h = painter.cart_size
+    for k, t in enumerate(sol.t):
+        frame = painter.frame(k, t, joints[k], trail=0.5, base=bases[k])
+        # the patch, and the pixels: the block's fill around its centre, rods from its centre
+        assert painter.cart.get_x() + 0.5 * painter.cart.get_width() == pytest.approx(sol.cart_x[k], abs=1e-12)
+        assert painter.cart.get_y() + 0.5 * painter.cart.get_height() == pytest.approx(0.0, abs=1e-12)
+        for dx in (-0.35 * w, 0.35 * w):
+            row, col = _pixel(painter, (sol.cart_x[k] + dx, -0.3 * h))
+            assert frame[row, col].max() < 235, f"no cart at x = {sol.cart_x[k]:.3f} at t = {t}"
+        assert _dark(frame, *_pixel(painter, (sol.cart_x[k], 0.0)))
+        chain_xy = np.vstack([bases[k], joints[k]])
+        for i in range(2):
+            for s in np.linspace(0.1, 1.0, 6):
+                assert _dark(frame, *_pixel(painter, chain_xy[i] + s * (chain_xy[i + 1] - chain_xy[i])))
+        # far from the cart (half a block beyond it, at the rail's height but above it) is background
+        row, col = _pixel(painter, (sol.cart_x[k] + (1 if joints[k][-1][0] < sol.cart_x[k] else -1) * 1.2 * w, 0.6 * h))
+        assert frame[row, col].min() > 200
+    # the axes hold the whole travel, with the chain's reach either side
+    lo, hi = painter.ax.get_xlim()
+    assert lo <= sol.cart_x.min() - 1.8 and hi >= sol.cart_x.max() + 1.8
+
+
+def test_the_pivot_marker_follows_the_moving_pivot(pivot_sol):
+    sol = pivot_sol
+    painter, joints, bases = _draw_at_samples(sol)
+    assert painter.cart is None
+    np.testing.assert_allclose(bases, sol.pivot, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(joints, sol.positions, rtol=0, atol=1e-12)
+    for k, t in enumerate(sol.t):
+        frame = painter.frame(k, t, joints[k], trail=0.5, base=bases[k])
+        x, y = painter.pivot.get_data()
+        assert (x[0], y[0]) == pytest.approx(tuple(sol.pivot[k]), abs=1e-12)
+        assert _dark(frame, *_pixel(painter, sol.pivot[k])), f"pivot not drawn at {sol.pivot[k]} at t = {t}"
+        for s in np.linspace(0.1, 1.0, 6):
+            assert _dark(frame, *_pixel(painter, sol.pivot[k] + s * (joints[k][0] - sol.pivot[k])))
+    # between samples the pivot is the run's Pivot evaluated by the core, not an interpolation
+    from multipendulum.animation import _frame_positions
+    from multipendulum.plotting import base_motion
+
+    mid = 0.5 * (sol.t[:-1] + sol.t[1:])
+    _, between = _frame_positions(base_motion(sol, series(sol)), mid)
+    expected = np.stack([0.6 * np.sin(2.5 * mid), 0.3 * np.sin(5.0 * mid + 1.0)], axis=1)
+    np.testing.assert_allclose(between, expected, rtol=0, atol=1e-12)
+    ylo, yhi = painter.ax.get_ylim()
+    assert ylo <= -0.3 - 1.1 and yhi >= 0.3 + 1.1
+
+
+def test_a_results_file_of_a_cart_run_animates_with_its_moving_base(tmp_path, cart_sol):
+    from multipendulum.animation import _frame_positions
+    from multipendulum.plotting import base_motion
+
+    results = load_results(save_results(cart_sol, tmp_path / "r.npz"))
+    view = base_motion(results, series(results))
+    assert view.moving
+    np.testing.assert_allclose(view.pivot, cart_sol.pivot, rtol=0, atol=1e-12)  # recovered from the positions
+    joints, _ = _frame_positions(view, cart_sol.t)
+    np.testing.assert_allclose(joints, cart_sol.positions, rtol=0, atol=1e-12)
+    frames, _ = _gif_frames(mp.animate(results, tmp_path / "c.gif", fps=5, dpi=30))
+    assert len(frames) == 16
+    _assert_not_blank(frames)
+
+
+def test_a_fixed_pivot_is_drawn_as_before(sol):
+    from multipendulum.plotting import base_motion
+
+    view = base_motion(sol, series(sol))
+    assert not view.moving and view.cart_x is None and view.work == {}
+    painter = _Painter(view, dpi=60, size=5.0, title=None, speed=1.0)
+    assert painter.ax.get_xlim() == pytest.approx((-2.2, 2.2)) and painter.ax.get_ylim() == pytest.approx((-2.2, 2.2))
+
+
+def test_the_energy_plot_of_a_lossy_run_shows_the_balance_and_its_terms(cart_sol, pivot_sol):
+    import matplotlib.pyplot as plt
+
+    for run, names in ((cart_sol, {"$W_{cart}$ (cart force)": cart_sol.work.cart,
+                                   "$-D$ (dissipated)": -cart_sol.work.dissipated}),
+                       (pivot_sol, {"$W_{pivot}$ (moving pivot)": pivot_sol.work.pivot,
+                                    "$-D$ (dissipated)": -pivot_sol.work.dissipated})):
+        (fig,) = mp.plot(run, kinds=("energy",))
+        try:
+            balance, residual = fig.axes
+            lines = {line.get_label(): line for line in balance.get_lines()}
+            assert set(lines) == {"$E - E_0$"} | set(names)  # only the terms that are not zero
+            np.testing.assert_array_equal(lines["$E - E_0$"].get_ydata(), run.energy - run.energy[0])
+            for label, values in names.items():
+                np.testing.assert_array_equal(lines[label].get_ydata(), values)
+            # the terms add up to E - E0, to the run's residual
+            total = sum(names.values())
+            assert np.max(np.abs(total - (run.energy - run.energy[0]))) < 1e-6 * np.max(np.abs(total))
+            assert residual.get_yscale() == "log"
+            (err,) = residual.get_lines()
+            positive = run.energy_error > 0
+            np.testing.assert_array_equal(err.get_ydata(), run.energy_error[positive])
+            assert fig._suptitle.get_text().startswith("Energy balance")
+        finally:
+            plt.close(fig)
+
+
+def test_the_energy_plot_of_a_conservative_run_is_unchanged(sol):
+    import matplotlib.pyplot as plt
+
+    (fig,) = mp.plot(sol, kinds=("energy",))
+    try:
+        (ax,) = fig.axes
+        assert ax.get_yscale() == "log" and len(ax.get_lines()) == 1
+        assert fig._suptitle.get_text().startswith("Energy error")
+    finally:
+        plt.close(fig)
+
+
+def test_the_tip_plot_holds_the_pivots_motion_and_marks_the_rail(cart_sol, pivot_sol):
+    import matplotlib.pyplot as plt
+
+    figs = mp.plot(cart_sol, kinds=("tip",)) + mp.plot(pivot_sol, kinds=("tip",))
+    try:
+        for fig, run in zip(figs, (cart_sol, pivot_sol)):
+            ax = fig.axes[0]
+            (xlo, xhi), (ylo, yhi) = ax.get_xlim(), ax.get_ylim()
+            pts = np.concatenate([run.positions[:, -1], run.pivot])
+            assert xlo < pts[:, 0].min() and xhi > pts[:, 0].max() and ylo < pts[:, 1].min() and yhi > pts[:, 1].max()
+            labels = [line.get_label() for line in ax.get_lines()]
+            assert ("rail" in labels) == (run is cart_sol)
+            assert "pivot (at start)" in labels
+    finally:
+        for fig in figs:
+            plt.close(fig)

@@ -152,3 +152,37 @@ def test_mode_pictures_and_animation(tmp_path):
     assert frames == int(np.floor(3 * period * 10 + 1e-9)) + 1  # three periods at 10 frames per second
     with pytest.raises(mp.InputError, match=r"mode must be an index in \[0, 2\), got 2"):
         mp.animate_mode(DOUBLE, [0.0, 0.0], 2, tmp_path / "x.gif")
+
+
+def test_damping_enters_the_linearisation_but_not_the_undamped_modes():
+    # One link, a joint damper b: theta'' = -(m g c / I_p) q - (b / I_p) omega about hanging.
+    b = 0.3
+    chain = mp.Chain([1.0], [2.0], damping=b)
+    A, B = mp.linearize(chain, [0.0])
+    I_p = 2.0
+    np.testing.assert_allclose(A, [[0.0, 1.0], [-2.0 * G / I_p, -b / I_p]], rtol=1e-12)
+    np.testing.assert_allclose(B, [[0.0], [1.0 / I_p]], rtol=1e-12)
+    modes = mp.normal_modes(chain, [0.0])
+    np.testing.assert_allclose(modes.eigenvalues, [G], rtol=1e-12)  # as without the damper
+    zeta = b / (2 * I_p * np.sqrt(G))
+    expected = np.sqrt(G) * (-zeta + np.array([1j, -1j]) * np.sqrt(1 - zeta**2))
+    np.testing.assert_allclose(modes.exponents, expected, rtol=1e-12)
+    assert not modes.cart
+
+
+def test_modes_of_a_chain_on_a_cart_are_drawn_and_animated_with_the_cart(tmp_path):
+    chain = mp.Chain.rods([1.0, 1.0], [1.0, 1.0], cart=mp.Cart(2.0))
+    modes = mp.normal_modes(chain, [0.0, 0.0])
+    assert modes.cart and modes.n == 3 and modes.shapes.shape == (3, 3)
+    assert modes.eigenvalues[0] == 0.0 and modes.describe(0) == "neutral (lambda = 0)"
+    np.testing.assert_allclose(modes.shapes[:, 0], [1.0, 0.0, 0.0], atol=1e-12)
+    M = chain.mass_matrix([0.0, 0.0])
+    gram = modes.shapes.T @ M @ modes.shapes
+    assert np.max(np.abs(gram - np.diag(np.diag(gram)))) < 1e-12 * np.max(np.abs(gram))
+    fig = mp.plot_modes(chain, [0.0, 0.0], modes=[1])
+    ax = fig.axes[0]
+    # the displaced chains start at the cart, which moves with the mode (x first in the shape)
+    starts = {round(float(line.get_xdata()[0]), 9) for line in ax.get_lines() if len(line.get_xdata()) == 3}
+    assert len(starts) > 2 and modes.shapes[0, 1] != 0
+    gif = mp.animate_mode(chain, [0.0, 0.0], 1, tmp_path / "cart_mode.gif", amplitude=0.05, fps=5, dpi=30, size=3)
+    assert gif.exists()

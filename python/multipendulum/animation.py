@@ -1,9 +1,13 @@
 """Animations of a run: GIF through Pillow, MP4 through the ffmpeg shipped by imageio-ffmpeg.
 
 Frames are drawn with Matplotlib's Agg canvas (no GUI backend, no pyplot state): the static
-parts (axes, pivot) once, then per frame the rods, the bobs, the fading trail of the last tip
-and the time and energy-error labels. Joint positions come from the chain
-(``chain.positions``) at each frame time, so links stay rigid between samples.
+parts (axes, a fixed pivot's support, a moving pivot's path, a cart's rail) once, then per
+frame the rods, the bobs, the pivot (and the cart, a block centred on ``sol.cart_x``), the
+fading trail of the last tip and the time and energy-error labels. Joint positions come from
+the chain (``chain.positions``, relative to the pivot) at each frame time, so links stay rigid
+between samples, plus the pivot's lab position (``sol.pivot``: the run's :class:`Pivot`
+evaluated by the core at the frame time, a cart's position interpolated). The axes hold the
+whole motion of the base.
 """
 from __future__ import annotations
 
@@ -16,6 +20,7 @@ from typing import Any, Callable, Optional, Union
 import numpy as np
 
 from ._files import atomic_path
+from .plotting import base_motion, motion_limits
 from .results import series
 
 __all__ = ["animate", "frame_times", "plan", "frame_count", "MAX_FRAMES", "MAX_SIDE", "MAX_PIXEL_FRAMES"]
@@ -25,6 +30,7 @@ _FORMATS = (".gif", ".mp4")
 _ROD = "#2b2b2b"
 _BOB = "#1f77b4"
 _TRAIL = np.array([0.84, 0.15, 0.16])  # tab:red
+_CART = "#9aa5b1"
 
 
 # The cost of an animation (re-exported here, where callers look for them).
@@ -67,15 +73,15 @@ def animate(
     suffix = path.suffix.lower()
     if suffix not in _FORMATS:
         raise InputError(f"animation file must end in .gif or .mp4, got {str(path)!r}")
-    view = series(sol, "mp.animate")
+    view = base_motion(sol, series(sol, "mp.animate"))
     plan(float(view.t[0]), float(view.t[-1]), fps, speed, dpi, size, trail, n=view.theta.shape[1],
          format=suffix, names=names)  # refuses what would not fit before anything is drawn
     times = frame_times(float(view.t[0]), float(view.t[-1]), fps, speed)
     with reporter(progress, "animate") as report:
-        joints = _frame_positions(view, times)
+        joints, bases = _frame_positions(view, times)
         painter = _Painter(view, dpi=dpi, size=size, title=title, speed=speed)
         path.parent.mkdir(parents=True, exist_ok=True)
-        frames = (painter.frame(k, times[k], joints[k], trail) for k in range(len(times)))
+        frames = (painter.frame(k, times[k], joints[k], trail, base=bases[k]) for k in range(len(times)))
         with atomic_path(path) as tmp:
             if suffix == ".gif":
                 _write_gif(tmp, frames, len(times), fps, report)
@@ -84,19 +90,27 @@ def animate(
     return path
 
 
-def _frame_positions(view, times: np.ndarray) -> np.ndarray:
-    """(F, N, 2) joint positions at the frame times: the chain's positions of the angles
-    interpolated between samples (exact at sample times); without a chain, the nearest sample."""
+def _frame_positions(view, times: np.ndarray):
+    """``(joints, bases)`` at the frame times: (F, N, 2) joint positions and (F, 2) pivot
+    positions, both in the lab frame. The joints are the chain's positions of the angles
+    interpolated between samples (exact at sample times) plus the pivot's position: the run's
+    :class:`Pivot` evaluated by the core, else (a cart, a results file) the samples interpolated.
+    Without a chain, the nearest sample of the stored positions."""
     t = view.t
     if view.chain is not None and len(t) > 1:
         theta = np.empty((len(times), view.theta.shape[1]))
         for i in range(view.theta.shape[1]):
             theta[:, i] = np.interp(times, t, view.theta[:, i])
-        return np.asarray(view.chain.positions(theta), dtype=float)
+        if view.pivot_path is not None:
+            bases = np.asarray(view.pivot_path.position(times), dtype=float).reshape(len(times), 2)
+        else:
+            bases = np.stack([np.interp(times, t, view.pivot[:, 0]), np.interp(times, t, view.pivot[:, 1])], axis=1)
+        joints = np.asarray(view.chain.positions(theta), dtype=float) + bases[:, None, :]
+        return joints, bases
     idx = np.clip(np.searchsorted(t, times), 0, len(t) - 1)
     prev = np.clip(idx - 1, 0, len(t) - 1)
-    nearer_prev = np.abs(times - t[prev]) < np.abs(t[idx] - times)
-    return view.positions[np.where(nearer_prev, prev, idx)]
+    nearest = np.where(np.abs(times - t[prev]) < np.abs(t[idx] - times), prev, idx)
+    return view.positions[nearest], view.pivot[nearest]
 
 
 class _Painter:
@@ -105,6 +119,8 @@ class _Painter:
         from matplotlib.collections import LineCollection
         from matplotlib.figure import Figure
 
+        if not hasattr(view, "moving"):  # a bare series(): the base recovered from its positions
+            view = base_motion(None, view)
         self.view = view
         pixels = int(_side(size, dpi))
         self.pixels = pixels
@@ -114,8 +130,9 @@ class _Painter:
         self.ax = ax
         lengths, masses = view.lengths, view.masses
         reach = float(np.sum(lengths)) * 1.1
-        ax.set_xlim(-reach, reach)
-        ax.set_ylim(-reach, reach)
+        xlim, ylim = motion_limits(view, 1.1)
+        ax.set_xlim(*xlim)
+        ax.set_ylim(*ylim)
         ax.set_aspect("equal")
         ax.set_xlabel("x (m)", fontsize=8)
         ax.set_ylabel("y (m)", fontsize=8)
@@ -134,7 +151,7 @@ class _Painter:
 
         # Sizes in points from the axes' scale, so a 50-link chain has small bobs and thin rods.
         ax_width_pt = 0.85 * pixels / dpi * 72.0
-        pt_per_m = ax_width_pt / (2 * reach)
+        pt_per_m = ax_width_pt / (xlim[1] - xlim[0])
         shortest = float(np.min(lengths)) * pt_per_m
         rod_width = float(np.clip(0.08 * shortest, 0.8, 3.5))
         biggest = float(np.clip(0.45 * shortest, 2.0, 16.0))
@@ -143,8 +160,21 @@ class _Painter:
         self.bob_sizes = diameters ** 2
         self.com_fraction = view.com / lengths  # where on each link its mass sits, for the bobs
 
-        # Static: the support and the fixed pivot.
-        ax.plot([-0.08 * reach, 0.08 * reach], [0, 0], color="black", lw=2.0, solid_capstyle="butt")
+        # Static: a fixed pivot's support; a moving pivot's path (faint); a cart's rail, spanning
+        # the cart's travel and the chain's reach either side of it.
+        self.cart = None
+        if view.cart_x is not None:
+            from matplotlib.patches import Rectangle
+
+            ax.plot(list(xlim), [0.0, 0.0], color="0.3", lw=1.2, zorder=1, solid_capstyle="butt")
+            self.cart_size = (0.25 * reach, 0.12 * reach)  # width, height (m)
+            w, h = self.cart_size
+            self.cart = Rectangle((-0.5 * w, -0.5 * h), w, h, facecolor=_CART, edgecolor="black", lw=0.8, zorder=2)
+            ax.add_patch(self.cart)
+        elif view.moving:
+            ax.plot(view.pivot[:, 0], view.pivot[:, 1], color="0.55", lw=0.8, ls=":", zorder=1)
+        else:
+            ax.plot([-0.08 * reach, 0.08 * reach], [0, 0], color="black", lw=2.0, solid_capstyle="butt")
         self.trail = LineCollection([], linewidths=1.4, capstyle="round")
         ax.add_collection(self.trail)
         (self.rods,) = ax.plot([], [], "-", color=_ROD, lw=rod_width, solid_capstyle="round", zorder=3)
@@ -157,15 +187,23 @@ class _Painter:
         # Blitting: the static picture is rendered once; each frame restores it and draws only
         # the moving artists on top (ten times faster than redrawing the axes every frame).
         self.moving = [self.trail, self.rods, self.bobs, self.pivot, self.time_text, self.err_text]
+        if self.cart is not None:
+            self.moving.insert(0, self.cart)
         for artist in self.moving:
             artist.set_animated(True)
         self.canvas.draw()
         self.background = self.canvas.copy_from_bbox(self.fig.bbox)
 
-    def frame(self, k: int, t: float, joints: np.ndarray, trail: float) -> np.ndarray:
-        """Draw the chain at time t and return the frame as an (H, W, 3) uint8 array."""
+    def frame(self, k: int, t: float, joints: np.ndarray, trail: float, base=(0.0, 0.0)) -> np.ndarray:
+        """Draw the chain at time t and return the frame as an (H, W, 3) uint8 array.
+        ``joints`` (N, 2) and ``base`` (2,), the pivot (on a cart, the cart's centre), in the lab frame."""
         view = self.view
-        chain = np.vstack([[0.0, 0.0], joints])
+        base = np.asarray(base, dtype=float).reshape(2)
+        chain = np.vstack([base, joints])
+        self.pivot.set_data([base[0]], [base[1]])
+        if self.cart is not None:
+            w, h = self.cart_size
+            self.cart.set_xy((base[0] - 0.5 * w, base[1] - 0.5 * h))
         self.rods.set_data(chain[:, 0], chain[:, 1])
         starts = chain[:-1]
         bobs = starts + self.com_fraction[:, None] * (chain[1:] - starts)
@@ -177,7 +215,7 @@ class _Painter:
         err = float(np.interp(t, view.t, view.energy_error))
         self.err_text.set_text(f"energy error {err:8.1e}")
         self.canvas.restore_region(self.background)
-        for artist in self.moving:  # in zorder: trail, rods, bobs, pivot, labels
+        for artist in self.moving:  # in zorder: cart, trail, rods, bobs, pivot, labels
             self.ax.draw_artist(artist)
         rgba = np.asarray(self.canvas.buffer_rgba())
         return np.ascontiguousarray(rgba[..., :3])
