@@ -50,10 +50,15 @@ def test_every_example_runs_through_the_cli(tmp_path, capsys, path):
     out = tmp_path / "out"
     assert main(["run", str(path), "-o", str(out), "--t-end", "0.5"]) == 0
     text = capsys.readouterr().out
-    assert "N = " in text and "steps" in text and "wall time" in text and "max energy error" in text
+    assert "N = " in text and "steps" in text and "wall time" in text
     from multipendulum.scenario import load_scenario
 
     scenario = load_scenario(path)
+    # Losses, a moving pivot or a pushed cart: the energy balance's residual, and the work terms.
+    balance = scenario.pivot is not None or scenario.cart is not None or "damping" in scenario.chain \
+        or "friction" in scenario.chain
+    assert ("max energy-balance residual" in text and "work done by t = 0.5 s:" in text) == balance, text
+    assert ("max energy error" in text) != balance
     files = sorted(os.listdir(out))
     assert files == sorted(["results.npz", scenario.outputs.animation] + PLOTS)
     results = load_results(out / "results.npz")
@@ -197,3 +202,92 @@ def test_failed_integration_exits_nonzero_and_writes_nothing(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.startswith("multipendulum: error: integration failed at t = ") and err.rstrip().endswith("nothing written")
     assert not out.exists()
+
+
+def test_the_summary_of_a_lossy_driven_run_gives_the_balance_and_its_terms(tmp_path, capsys):
+    from multipendulum.scenario import load_scenario
+
+    path = tmp_path / "pushed.toml"
+    path.write_text(GOOD.replace("masses = [1.0, 1.0]", "masses = [1.0, 1.0]\ndamping = [0.1, 0.0]") + """
+[torque]
+kind = "constant"
+convention = "joint"
+value = [0.2, 0.0]
+[cart]
+mass = 1.0
+damping = 0.5
+force = { kind = "sinusoid", amplitude = 2.0, frequency = 3.0 }
+""")
+    assert main(["run", str(path), "-o", str(tmp_path / "out"), "--no-animation", "--no-plots"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    sol = load_scenario(path).run()
+    residual = next(line for line in lines if "energy-balance residual" in line)
+    assert residual == (f"  max energy-balance residual {sol.stats.energy_error:.3g} "
+                        "(|E - E0 - W_torque - W_cart + D| / S, E in the lab frame; S: well depth + max kinetic energy)")
+    work = next(line for line in lines if line.startswith("  work done by"))
+    assert work == (f"  work done by t = 0.2 s: torque {sol.work.torque[-1]:.4g} J, cart force {sol.work.cart[-1]:.4g} J, "
+                    f"dissipated {sol.work.dissipated[-1]:.4g} J")
+    assert sol.work.dissipated[-1] > 0 and sol.work.cart[-1] != 0
+    results = load_results(tmp_path / "out" / "results.npz")
+    np.testing.assert_array_equal(results.cart_x, sol.cart_x)
+    np.testing.assert_array_equal(results.work.dissipated, sol.work.dissipated)
+
+
+def test_a_torque_alone_keeps_the_plain_energy_error_line(tmp_path, capsys):
+    assert main(["run", str(ROOT / "examples" / "seed000_driven_chain.toml"), "-o", str(tmp_path / "out"),
+                 "--t-end", "0.1", "--no-animation", "--no-plots"]) == 0
+    text = capsys.readouterr().out
+    assert "max energy error" in text and "(|E - E0 - W| / S;" in text and "work done by" not in text
+
+
+#: Bad losses, pivots and carts (issue 13): each exits 1 naming the key, and nothing is written.
+BAD_BASE = [
+    ("negative damping", GOOD.replace("masses = [1.0, 1.0]", "masses = [1.0, 1.0]\ndamping = [0.1, -1.0]"),
+     "key 'chain.damping[1]': must be >= 0, got -1.0"),
+    ("nan damping", GOOD.replace("masses = [1.0, 1.0]", "masses = [1.0, 1.0]\ndamping = nan"),
+     "key 'chain.damping': must be finite, got nan"),
+    ("negative friction", GOOD.replace("masses = [1.0, 1.0]", "masses = [1.0, 1.0]\nfriction = [-0.2, 0.0]"),
+     "key 'chain.friction[0]': must be >= 0, got -0.2"),
+    ("infinite friction", GOOD.replace("masses = [1.0, 1.0]", "masses = [1.0, 1.0]\nfriction = inf"),
+     "key 'chain.friction': must be finite, got inf"),
+    ("zero friction_velocity", GOOD.replace("masses = [1.0, 1.0]", "masses = [1.0, 1.0]\nfriction_velocity = 0.0"),
+     "key 'chain.friction_velocity': must be > 0, got 0.0"),
+    ("negative friction_velocity",
+     GOOD.replace("masses = [1.0, 1.0]", "masses = [1.0, 1.0]\nfriction_velocity = -1e-3"),
+     "key 'chain.friction_velocity': must be > 0, got -0.001"),
+    ("zero cart mass", GOOD + "[cart]\nmass = 0.0\n", "key 'cart.mass': must be > 0, got 0.0"),
+    ("negative cart mass", GOOD + "[cart]\nmass = -1\n", "key 'cart.mass': must be > 0, got -1"),
+    ("nan cart mass", GOOD + "[cart]\nmass = nan\n", "key 'cart.mass': must be finite, got nan"),
+    ("negative cart damping", GOOD + "[cart]\nmass = 1\ndamping = -0.5\n", "key 'cart.damping': must be >= 0"),
+    ("infinite cart damping", GOOD + "[cart]\nmass = 1\ndamping = inf\n", "key 'cart.damping': must be finite"),
+    ("pivot table of 1 point", GOOD + '[pivot]\ny = { kind = "table", t = [0.0], values = [0.0] }\n',
+     ("key 'pivot.y': ", "at least 2 samples, got 1")),
+    ("pivot csv of 1 row", GOOD + '[pivot]\nx = { kind = "table", file = "x.csv" }\n',
+     "key 'pivot.x.file': x.csv: expected at least 2 rows of numbers, got 1"),
+    ("unknown pivot key", GOOD + "[pivot]\nx = 0.1\nphase = 2.0\n",
+     "key 'pivot.phase': unknown key; expected one of: x, y"),
+    ("unknown pivot axis key", GOOD + '[pivot.y]\nkind = "sinusoid"\namplitude = 0.1\nfrequency = 9\namp = 1\n',
+     "key 'pivot.y.amp': unknown key"),
+    ("unknown cart key", GOOD + "[cart]\nmass = 1.0\nvelocity = 2.0\n",
+     "key 'cart.velocity': unknown key; expected one of: mass, damping, x0, v0, force"),
+    ("unknown cart force key", GOOD + '[cart]\nmass = 1.0\n[cart.force]\nkind = "sinusoid"\namplitude = 1\n'
+     "frequency = 1\nperiod = 3\n", "key 'cart.force.period': unknown key"),
+    ("pivot with a cart", GOOD + "[pivot]\ny = 0.1\n[cart]\nmass = 1.0\n", "key 'pivot': cannot be given with [cart]"),
+]
+
+
+@pytest.mark.parametrize("what,text,message", BAD_BASE, ids=[b[0] for b in BAD_BASE])
+def test_bad_losses_pivots_and_carts_exit_1_naming_the_key_and_write_nothing(tmp_path, capsys, what, text, message):
+    scenario = tmp_path / "bad.toml"
+    scenario.write_text(text)
+    (tmp_path / "x.csv").write_text("t,x\n0,0.1\n")
+    out = tmp_path / "out"
+    assert main(["run", str(scenario), "-o", str(out)]) == 1
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    assert captured.err.startswith(f"multipendulum: error: {scenario}: key '")
+    for fragment in (message,) if isinstance(message, str) else message:
+        assert fragment in captured.err, captured.err
+    assert len(captured.err.strip().splitlines()) == 1 and "Traceback" not in captured.err
+    assert not out.exists()
+    assert sorted(os.listdir(tmp_path)) == ["bad.toml", "x.csv"]

@@ -40,13 +40,23 @@ def run():
 
 
 def _assert_same(results, sol):
+    # (np.asarray: the work is a multipendulum.Work, the net work as an array with its parts.)
     for name in ARRAYS:
-        got, want = getattr(results, name), np.asarray(getattr(sol, name))
+        got, want = np.asarray(getattr(results, name)), np.asarray(getattr(sol, name))
         assert got.dtype == np.float64 and got.shape == want.shape, name
         np.testing.assert_array_equal(got, want, err_msg=name)
-    for name in ("lengths", "masses", "com", "inertia"):
+    for part in ("torque", "pivot", "cart", "dissipated"):
+        np.testing.assert_array_equal(getattr(results.work, part), getattr(sol.work, part), err_msg=part)
+    np.testing.assert_array_equal(results.pivot, sol.pivot)
+    for name in ("cart_x", "cart_v"):
+        if getattr(sol, name) is None:
+            assert getattr(results, name) is None, name
+        else:
+            np.testing.assert_array_equal(getattr(results, name), getattr(sol, name), err_msg=name)
+    for name in ("lengths", "masses", "com", "inertia", "damping", "friction"):
         np.testing.assert_array_equal(getattr(results, name), np.asarray(getattr(sol.chain, name)), err_msg=name)
-    assert results.g == sol.chain.g
+    assert results.g == sol.chain.g and results.friction_velocity == sol.chain.friction_velocity
+    assert results.cart == sol.chain.cart
 
 
 @pytest.mark.parametrize("fmt", ["npz", "csv"])
@@ -166,7 +176,7 @@ def test_npz_metadata_is_plain_json(tmp_path, run):
         meta = json.loads(str(data["metadata"]))
         assert set(ARRAYS) <= set(data.files)
         assert data["positions"].shape == (len(sol.t), 3, 2)
-    assert meta["format"] == "multipendulum-results" and meta["format_version"] == 1
+    assert meta["format"] == "multipendulum-results" and meta["format_version"] == 2
 
 
 # ---------------------------------------------------------------------------------------------
@@ -278,3 +288,119 @@ def test_a_batch_solution_is_refused_by_plot_animate_and_save_results(tmp_path):
     np.testing.assert_array_equal(single.theta, batch.theta[1])
     with pytest.raises(mp.InputError, match="takes a multipendulum Solution or loaded Results, got dict"):
         mp.plot({"t": [0.0]})
+
+
+# ---------------------------------------------------------------------------------------------
+# Losses, a moving pivot, a cart (issue 13): their series and parameters round-trip
+
+
+BASE_RUNS = {
+    "pivot": """
+[chain]
+kind = "rods"
+lengths = [0.5, 0.4]
+masses = [0.1, 0.2]
+friction = [0.001, 0.0]
+friction_velocity = 0.01
+[initial]
+unit = "degrees"
+theta = [170.0, 175.0]
+[simulation]
+t_end = 0.5
+sample_dt = 0.05
+[pivot]
+x = 0.1
+y = { kind = "sinusoid", amplitude = 0.02, frequency = 300.0, phase = 1.5707963267948966 }
+""",
+    "cart": """
+[chain]
+lengths = [0.6]
+masses = [0.2]
+damping = 0.01
+[initial]
+unit = "radians"
+theta = [0.3]
+[simulation]
+t_end = 0.5
+sample_dt = 0.05
+[cart]
+mass = 1.0
+damping = 0.2
+x0 = 0.5
+v0 = -0.1
+force = { kind = "table", t = [0.0, 0.25, 0.5], values = [0.0, 2.0, -1.0], interpolation = "cubic" }
+""",
+}
+
+
+@pytest.mark.parametrize("fmt", ["npz", "csv"])
+@pytest.mark.parametrize("kind", sorted(BASE_RUNS))
+def test_pivot_cart_and_work_parts_round_trip(tmp_path, kind, fmt):
+    scenario = loads_scenario(BASE_RUNS[kind])
+    sol = scenario.run()
+    # What the run has, so the round trip below compares something.
+    if kind == "cart":
+        assert sol.cart_x is not None and np.ptp(sol.cart_x) > 0 and np.ptp(sol.work.cart) > 0
+        assert sol.work.dissipated[-1] > 0
+    else:
+        assert sol.cart_x is None and np.ptp(sol.pivot[:, 1]) > 0 and np.all(sol.pivot[:, 0] == 0.1)
+        assert np.ptp(sol.work.pivot) > 0
+    results = load_results(save_results(sol, tmp_path / f"r.{fmt}", scenario=scenario))
+    _assert_same(results, sol)
+    np.testing.assert_array_equal(np.asarray(results.work), np.asarray(sol.work))
+    chain = results.chain
+    np.testing.assert_array_equal(chain.damping, sol.chain.damping)
+    np.testing.assert_array_equal(chain.friction, sol.chain.friction)
+    assert chain.friction_velocity == sol.chain.friction_velocity and chain.cart == sol.chain.cart
+    # saved again from the loaded results: the same file contents
+    again = load_results(save_results(results, tmp_path / f"again.{fmt}"))
+    _assert_same(again, sol)
+    # and its scenario reruns the same run
+    np.testing.assert_array_equal(results.scenario().run().theta, sol.theta)
+
+
+def test_format_1_files_still_load(tmp_path, run):
+    """A file written before issue 13: no pivot, work parts or losses; read as a fixed pivot, all
+    the work the torque's, no losses."""
+    scenario, sol = run
+    path = save_results(sol, tmp_path / "new.npz", scenario=scenario)
+    with np.load(path) as data:
+        arrays = {k: data[k] for k in data.files}
+    meta = json.loads(str(arrays["metadata"]))
+    meta["format_version"] = 1
+    arrays["metadata"] = np.asarray(json.dumps(meta))
+    for k in ("pivot", "work_torque", "work_pivot", "work_cart", "dissipated", "damping", "friction",
+              "friction_velocity"):
+        del arrays[k]
+    old = tmp_path / "old.npz"
+    np.savez(old, **arrays)
+    results = load_results(old)
+    np.testing.assert_array_equal(results.work.torque, np.asarray(sol.work))
+    assert not results.work.dissipated.any() and not results.pivot.any() and results.cart_x is None
+    assert not results.chain.damping.any() and results.chain.cart is None
+    np.testing.assert_array_equal(results.theta, sol.theta)
+    # CSV of format 1: the columns end with the positions
+    csv = save_results(sol, tmp_path / "new.csv", scenario=scenario).read_text().splitlines()
+    n = sol.theta.shape[1]
+    keep = 1 + 3 * n + 3 + 2 * n
+    meta_line = csv[1].replace('"format_version": 2', '"format_version": 1')
+    body = [",".join(line.split(",")[:keep]) for line in csv[2:]]
+    (tmp_path / "old.csv").write_text("\n".join([csv[0], meta_line] + body) + "\n")
+    results = load_results(tmp_path / "old.csv")
+    np.testing.assert_array_equal(results.theta, sol.theta)
+    np.testing.assert_array_equal(results.work.torque, np.asarray(sol.work))
+
+
+def test_a_cart_file_missing_its_series_is_refused(tmp_path):
+    sol = loads_scenario(BASE_RUNS["cart"]).run()
+    path = save_results(sol, tmp_path / "r.npz")
+    with np.load(path) as data:
+        arrays = {k: data[k] for k in data.files}
+    del arrays["cart_v"]
+    np.savez(tmp_path / "bad.npz", **arrays)
+    with pytest.raises(mp.InputError, match="a run with a cart stores cart .* got only cart, cart_x"):
+        load_results(tmp_path / "bad.npz")
+    arrays["cart_v"] = arrays["cart_x"][:-1]
+    np.savez(tmp_path / "bad2.npz", **arrays)
+    with pytest.raises(mp.InputError, match=r"cart_v must have shape \(11,\)"):
+        load_results(tmp_path / "bad2.npz")

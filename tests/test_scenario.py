@@ -28,6 +28,7 @@ t_end = 0.5
 def test_examples_are_there():
     names = {p.stem for p in EXAMPLES}
     assert {"seed000_driven_chain", "seed001_compound_double", "triple", "chain50", "driven_rod"} <= names
+    assert {"damped_double", "kapitza", "kapitza_slow", "shaken_horizontal"} <= names
 
 
 @pytest.mark.parametrize("path", EXAMPLES + [default_scenario_path()], ids=lambda p: p.stem)
@@ -61,6 +62,141 @@ def test_examples_say_what_they_are():
     rod = by_name["driven_rod"]
     assert rod.chain["kind"] == "rods" and rod.torque.kind == "table" and rod.torque.convention == "joint"
     assert rod.files["driven_rod.csv"].startswith("#")
+
+
+def _by_name(name):
+    return load_scenario(ROOT / "examples" / f"{name}.toml")
+
+
+def test_the_damped_double_pendulum_loses_its_energy_to_its_joints():
+    scenario = _by_name("damped_double")
+    assert scenario.chain["damping"] == [0.08, 0.05] and scenario.pivot is None and scenario.cart is None
+    sol = scenario.run()
+    energy, lost = sol.energy, sol.work.dissipated
+    scale = 9.81 * float(np.sum(np.asarray(sol.chain.masses) * np.asarray(sol.chain.com)))
+    assert np.all(np.diff(energy) < 1e-9 * scale)                # never gains energy
+    assert np.all(np.diff(lost) >= 0) and lost[-1] > 0.8 * (energy[0] - energy.min())
+    assert energy[-1] < energy[0] - 20.0                        # most of its 28 J above the bottom is gone
+    np.testing.assert_allclose(energy[0] - energy[-1], lost[-1], rtol=1e-8)   # the balance, closed
+    assert sol.stats.energy_error < 1e-8
+    assert not sol.work.torque.any() and not sol.work.pivot.any() and not sol.work.cart.any()
+
+
+def test_kapitza_stands_upright_on_a_fast_pivot_and_falls_on_a_slow_one():
+    fast, slow = _by_name("kapitza"), _by_name("kapitza_slow")
+    rod = fast.build_chain()
+    m, c, length = rod.masses[0], rod.com[0], rod.lengths[0]
+    i_pivot = rod.inertia[0] + m * c ** 2
+    threshold = 2 * 9.81 * i_pivot / (m * c)                     # a^2 Omega^2 needed upright
+    for scenario, stable in ((fast, True), (slow, False)):
+        y = scenario.pivot["y"]
+        assert y.kind == "sinusoid" and "x" not in scenario.pivot
+        drive = (y.params["amplitude"] * y.params["frequency"]) ** 2
+        assert (drive > 2 * threshold) if stable else (drive < 0.5 * threshold)
+        assert abs(scenario.theta0[0] - math.pi) < 0.15 and scenario.chain["lengths"] == [length]
+        sol = scenario.run()
+        off = np.abs(sol.theta[:, 0] - math.pi)
+        if stable:
+            assert off.max() < 0.3, off.max()                   # within 0.3 rad of upright throughout
+        else:
+            assert off.max() > 1.5, off.max()                   # leaves upright: falls below horizontal
+        np.testing.assert_allclose(sol.pivot[:, 1], y.params["amplitude"] * np.cos(y.params["frequency"] * sol.t),
+                                   atol=1e-12)
+        assert np.ptp(sol.work.pivot) > 0 and sol.stats.energy_error < 1e-8
+
+
+def test_a_sideways_shaken_pendulum_is_pumped_up_by_its_pivot():
+    scenario = _by_name("shaken_horizontal")
+    sol = scenario.run()
+    assert scenario.theta0[0] == 0.0 and np.all(scenario.omega0 == 0.0)
+    assert np.abs(sol.theta[:, 0]).max() > 0.5                  # from rest to swings of over 0.5 rad
+    assert sol.work.pivot[-1] > 1.0 and sol.work.dissipated[-1] > 0
+    assert not sol.pivot[:, 1].any() and np.ptp(sol.pivot[:, 0]) == pytest.approx(0.1, rel=1e-3)
+    assert sol.stats.energy_error < 1e-8
+
+
+PIVOTED = """
+[chain]
+kind = "rods"
+lengths = [0.5, 0.3]
+masses = [0.1, 0.1]
+damping = 0.01
+friction = [0.0, 0.002]
+friction_velocity = 0.05
+[initial]
+unit = "radians"
+theta = [3.0, 3.1]
+[simulation]
+t_end = 0.3
+"""
+
+
+def test_run_is_simulate_with_the_pivot_and_the_cart():
+    pivot = loads_scenario(PIVOTED + """
+[pivot]
+x = { kind = "table", t = [0.0, 0.1, 0.2, 0.3], values = [0.0, 0.01, -0.01, 0.0] }
+y = { kind = "sinusoid", amplitude = 0.02, frequency = 250.0, offset = 0.5 }
+""")
+    chain = mp.Chain.rods([0.5, 0.3], [0.1, 0.1], damping=0.01, friction=[0.0, 0.002], friction_velocity=0.05)
+    ref = mp.simulate(chain, [3.0, 3.1], [0.0, 0.0], 0.3, t_eval=pivot.t_eval(),
+                      pivot=mp.Pivot(x=mp.Table([0.0, 0.1, 0.2, 0.3], [0.0, 0.01, -0.01, 0.0], kind="cubic"),
+                                     y=mp.Sinusoid(0.02, 250.0, offset=0.5)))
+    sol = pivot.run()
+    for name in ("theta", "omega", "energy", "pivot"):
+        np.testing.assert_array_equal(getattr(sol, name), getattr(ref, name), err_msg=name)
+    np.testing.assert_array_equal(sol.work.pivot, ref.work.pivot)
+    assert sol.pivot[0, 1] == 0.5
+
+    cart = loads_scenario(PIVOTED + """
+[cart]
+mass = 2.0
+damping = 0.3
+x0 = -0.2
+v0 = 0.4
+[cart.force]
+kind = "sinusoid"
+amplitude = 1.5
+frequency = 4.0
+""")
+    chain = mp.Chain.rods([0.5, 0.3], [0.1, 0.1], damping=0.01, friction=[0.0, 0.002], friction_velocity=0.05,
+                          cart=mp.Cart(2.0, 0.3))
+    assert cart.build_chain().cart == mp.Cart(2.0, 0.3)
+    ref = mp.simulate(chain, [3.0, 3.1], [0.0, 0.0], 0.3, t_eval=cart.t_eval(), cart_x0=-0.2, cart_v0=0.4,
+                      cart_force=mp.Sinusoid(1.5, 4.0))
+    sol = cart.run()
+    for name in ("theta", "omega", "cart_x", "cart_v", "energy"):
+        np.testing.assert_array_equal(getattr(sol, name), getattr(ref, name), err_msg=name)
+    np.testing.assert_array_equal(sol.work.cart, ref.work.cart)
+    assert sol.cart_x[0] == -0.2 and sol.cart_v[0] == 0.4
+    # A number is a constant: a fixed offset of the pivot, a constant push on the cart.
+    offset = loads_scenario(PIVOTED + "[pivot]\nx = 0.25\n")
+    assert offset.build_base()["pivot"] == mp.Pivot(x=0.25, y=0.0)
+    np.testing.assert_array_equal(offset.run().pivot, np.tile([0.25, 0.0], (31, 1)))
+    pushed = loads_scenario(PIVOTED + "[cart]\nmass = 1.0\nforce = 2.5\n")
+    assert pushed.build_base() == {"cart_x0": 0.0, "cart_v0": 0.0, "cart_force": 2.5}
+
+
+def test_pivot_and_force_tables_from_csv_files():
+    files = {"y.csv": "# the pivot's height\nt,y\n0,0\n0.1,0.01\n0.2,0\n0.3,0.01\n",
+             "f.csv": "t,F\n0,0\n0.3,3\n"}
+    pivot = loads_scenario(PIVOTED + '[pivot]\ny = { kind = "table", file = "y.csv" }\n', files=files)
+    y = pivot.build_base()["pivot"].y
+    assert isinstance(y, mp.Table) and y.kind == "cubic"
+    np.testing.assert_array_equal(np.asarray(y.values), [0, 0.01, 0, 0.01])
+    assert pivot.files == {"y.csv": files["y.csv"]}
+    cart = loads_scenario(PIVOTED + '[cart]\nmass = 1.0\nforce = { kind = "table", file = "f.csv" }\n', files=files)
+    force = cart.build_base()["cart_force"]
+    assert isinstance(force, mp.Table) and force.kind == "linear"
+    np.testing.assert_array_equal(np.asarray(force.t), [0, 0.3])
+    assert np.all(np.isfinite(cart.run().cart_x))
+    bad = {"y.csv": "t,y\n0,0\n0.1,x\n"}
+    with pytest.raises(ScenarioError, match=r"^key 'pivot\.y\.file': y\.csv line 3, column 2 \('y', y\): "
+                                            r"expected a number, got 'x'$"):
+        loads_scenario(PIVOTED + '[pivot]\ny = { kind = "table", file = "y.csv" }\n', files=bad)
+    with pytest.raises(ScenarioError, match=r"^key 'cart\.force\.file': f\.csv line 1: expected 2 columns "
+                                            r"\(t, then force in N\), got 3$"):
+        loads_scenario(PIVOTED + '[cart]\nmass = 1.0\nforce = { kind = "table", file = "f.csv" }\n',
+                       files={"f.csv": "0,1,2\n1,2,3\n"})
 
 
 def test_degrees_and_radians_mean_the_same_run():
@@ -166,6 +302,60 @@ BAD = [
      '(did you mean "energy"?)'),
     ("ramp key", _edit("theta = [90.0, 45.0, 0.0]", "theta = { from = 1, too = 2 }"), "initial.theta.too",
      "did you mean 'to'?"),
+    # losses, a moving pivot, a cart (issue 13)
+    ("negative damping", _edit("[chain]", "[chain]\ndamping = [0.1, -0.5, 0.0]"), "chain.damping[1]",
+     "must be >= 0, got -0.5"),
+    ("nan damping", _edit("[chain]", "[chain]\ndamping = nan"), "chain.damping", "must be finite, got nan"),
+    ("infinite friction", _edit("[chain]", "[chain]\nfriction = [0.0, inf, 0.0]"), "chain.friction[1]",
+     "must be finite, got inf"),
+    ("negative friction", _edit("[chain]", "[chain]\nfriction = -1"), "chain.friction", "must be >= 0, got -1"),
+    ("damping count", _edit("[chain]", "[chain]\ndamping = [0.1, 0.1]"), "chain.damping",
+     "expected 3 values (one per link), got 2"),
+    ("zero friction_velocity", _edit("[chain]", "[chain]\nfriction_velocity = 0"), "chain.friction_velocity",
+     "must be > 0, got 0"),
+    ("friction_velocity type", _edit("[chain]", "[chain]\nfriction_velocity = [0.1]"), "chain.friction_velocity",
+     "expected a number > 0, got an array [0.1]"),
+    ("pivot key", GOOD + "[pivot]\nz = 1.0\n", "pivot.z", "unknown key; expected one of: x, y"),
+    ("pivot type", GOOD + '[pivot]\ny = "shake"\n', "pivot.y",
+     'expected a number (m) or a table {kind = "sinusoid" or "table", ...}, got a string \'shake\''),
+    ("pivot kind", GOOD + '[pivot]\ny = { kind = "sine", amplitude = 0.1, frequency = 2 }\n', "pivot.y.kind",
+     'expected one of "sinusoid", "table", got \'sine\''),
+    ("pivot sinusoid key", GOOD + '[pivot]\ny = { kind = "sinusoid", amplitude = 0.1, frequency = 2, freq = 1 }\n',
+     "pivot.y.freq", "unknown key; did you mean 'frequency'?"),
+    ("pivot frequency", GOOD + '[pivot]\ny = { kind = "sinusoid", amplitude = 0.1 }\n', "pivot.y.frequency",
+     "missing; expected the angular frequency in rad/s"),
+    ("pivot amplitude nan", GOOD + '[pivot]\nx = { kind = "sinusoid", amplitude = nan, frequency = 2 }\n',
+     "pivot.x.amplitude", "must be finite"),
+    ("pivot one point", GOOD + '[pivot]\ny = { kind = "table", t = [0.0], values = [0.1] }\n', "pivot.y",
+     "at least 2 samples, got 1"),
+    ("pivot times", GOOD + '[pivot]\ny = { kind = "table", t = [0.0, 1.0, 1.0], values = [0, 1, 2] }\n',
+     "pivot.y", "strictly increasing"),
+    ("pivot table count", GOOD + '[pivot]\ny = { kind = "table", t = [0.0, 1.0], values = [0.1] }\n',
+     "pivot.y.values", "expected 2 values (one per time in t), got 1"),
+    ("pivot table linear", GOOD + '[pivot]\ny = { kind = "table", t = [0, 1], values = [0, 1], '
+     'interpolation = "linear" }\n', "pivot.y.interpolation", "unknown key; expected one of: kind, t, values, file"),
+    ("pivot table both", GOOD + '[pivot]\ny = { kind = "table", file = "y.csv", t = [0, 1] }\n', "pivot.y.t",
+     "cannot be given with file"),
+    ("pivot spline overflow", GOOD + '[pivot]\ny = { kind = "table", t = [0, 1e-300, 1], values = [0, 1e300, 0] }\n',
+     "pivot.y", "values[0] and values[1]: the cubic spline through 0 at t = 0 and 1e+300 at t = 1e-300 overflows"),
+    ("pivot with cart", GOOD + "[pivot]\ny = 0.1\n[cart]\nmass = 1.0\n", "pivot",
+     "cannot be given with [cart]"),
+    ("cart mass missing", GOOD + "[cart]\ndamping = 0.1\n", "cart.mass", "missing; expected the cart's mass in kg"),
+    ("cart mass zero", GOOD + "[cart]\nmass = 0\n", "cart.mass", "must be > 0, got 0"),
+    ("cart mass negative", GOOD + "[cart]\nmass = -2.0\n", "cart.mass", "must be > 0, got -2.0"),
+    ("cart mass inf", GOOD + "[cart]\nmass = inf\n", "cart.mass", "must be finite, got inf"),
+    ("cart damping", GOOD + "[cart]\nmass = 1.0\ndamping = -0.1\n", "cart.damping", "must be >= 0, got -0.1"),
+    ("cart damping nan", GOOD + "[cart]\nmass = 1.0\ndamping = nan\n", "cart.damping", "must be finite"),
+    ("cart key", GOOD + "[cart]\nmass = 1.0\nx_0 = 1.0\n", "cart.x_0", "unknown key; did you mean 'x0'?"),
+    ("cart force type", GOOD + '[cart]\nmass = 1.0\nforce = [1.0, 2.0]\n', "cart.force",
+     "expected a number (N) or a table"),
+    ("cart force one point", GOOD + '[cart]\nmass = 1.0\nforce = { kind = "table", t = [0], values = [1] }\n',
+     "cart.force", "at least 2 samples, got 1"),
+    ("cart force interpolation", GOOD + '[cart]\nmass = 1.0\nforce = { kind = "table", t = [0, 1], '
+     'values = [0, 1], interpolation = "spline" }\n', "cart.force.interpolation",
+     'expected one of "linear", "cubic", got \'spline\''),
+    ("cart force file", GOOD + '[cart]\nmass = 1.0\nforce = { kind = "table", file = "nowhere.csv" }\n',
+     "cart.force.file", "cannot read"),
 ]
 
 

@@ -70,10 +70,47 @@ def _summary(scenario, sol) -> List[str]:
     return [
         f"{head}N = {n}, method {sol.method}, t_end = {scenario.t_end:g} s, {len(sol.t)} samples",
         f"  {steps}, {stats.evaluations} evaluations, wall time {stats.wall_time:.3g} s",
-        # The run's own measure (sol.stats.energy_error), never recomputed here.
-        f"  max energy error {stats.energy_error:.3g} (|E - E0 - W| / S; S: well depth + max kinetic energy)",
+        *_energy_lines(scenario, sol),
         _trust_line(sol, scenario),
     ]
+
+
+#: The work terms of the energy balance: the name of each part of ``sol.work``, its symbol in the
+#: balance and its label in the summary.
+_WORK_TERMS = (("torque", "W_torque", "torque"), ("pivot", "W_pivot", "pivot"), ("cart", "W_cart", "cart force"),
+               ("dissipated", "D", "dissipated"))
+
+
+def _work_terms(scenario) -> List[str]:
+    """The parts of the energy balance a scenario's run has: torque, pivot, cart (its force),
+    dissipated (damping, friction, the cart's damping)."""
+    chain = scenario.chain
+    cart = scenario.cart
+    present = {
+        "torque": scenario.torque is not None,
+        "pivot": any(axis.kind != "constant" for axis in (scenario.pivot or {}).values()),
+        "cart": cart is not None and cart.force is not None,
+        "dissipated": any(v > 0 for v in chain.get("damping", []) + chain.get("friction", []))
+                      or (cart is not None and cart.damping > 0),
+    }
+    return [name for name, _, _ in _WORK_TERMS if present[name]]
+
+
+def _energy_lines(scenario, sol) -> List[str]:
+    # The run's own measure (sol.stats.energy_error, already the balance's residual), never
+    # recomputed here.
+    error = sol.stats.energy_error
+    scale = "S: well depth + max kinetic energy"
+    terms = _work_terms(scenario)
+    if not set(terms) - {"torque"}:  # conservative, or driven by a torque alone: W is the torque's
+        return [f"  max energy error {error:.3g} (|E - E0 - W| / S; {scale})"]
+    balance = "E - E0" + "".join(f" - {symbol}" for name, symbol, _ in _WORK_TERMS[:3] if name in terms)
+    if "dissipated" in terms:
+        balance += " + D"
+    work = ", ".join(f"{label} {float(getattr(sol.work, name)[-1]):.4g} J"
+                     for name, _, label in _WORK_TERMS if name in terms)
+    return [f"  max energy-balance residual {error:.3g} (|{balance}| / S, E in the lab frame; {scale})",
+            f"  work done by t = {float(sol.t[-1]):g} s: {work}"]
 
 
 def _trust_line(sol, scenario=None) -> str:

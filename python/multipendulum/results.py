@@ -1,12 +1,16 @@
 """Results files: a solution's arrays plus what is needed to reproduce it.
 
 NPZ (the default) holds the arrays ``t`` (T,), ``theta``, ``omega``, ``p`` (T, N), ``energy``,
-``work``, ``energy_error`` (T,), ``positions`` (T, N, 2), the chain's ``lengths``, ``masses``,
-``com``, ``inertia`` (N,) and ``g``, and ``metadata``: a JSON string with the package version,
-the method, the run statistics, and the scenario text (with the contents of any file it names)
-when the run came from a scenario. CSV holds one row per sample with the metadata JSON on a
+``work`` (the net work), ``energy_error`` (T,), ``positions`` (T, N, 2, lab frame), ``pivot``
+(T, 2), the work's parts ``work_torque``, ``work_pivot``, ``work_cart``, ``dissipated`` (T,),
+with a cart ``cart_x`` and ``cart_v`` (T,); the chain's ``lengths``, ``masses``, ``com``,
+``inertia``, ``damping``, ``friction`` (N,), ``g`` and ``friction_velocity``, with a cart
+``cart`` (its mass and damping); and ``metadata``: a JSON string with the package version, the
+method, the run statistics, and the scenario text (with the contents of any file it names) when
+the run came from a scenario. CSV holds one row per sample with the metadata JSON on a
 ``# metadata:`` comment line; links are numbered from 1 in its column names (``theta_1`` hangs
-from the pivot).
+from the pivot). Files of format 1 (before the pivot, the cart and the work's parts) still
+load: a fixed pivot, the work all the torque's, no losses.
 
 Files are written atomically: to a temporary file in the target directory, flushed and fsynced,
 then renamed over the target. An interrupt or an error leaves either the old file or none.
@@ -28,8 +32,10 @@ import numpy as np
 
 import multipendulum._core as _core
 
+from ._base import Cart
 from ._chain import Chain
 from ._convert import is_float
+from ._simulate import Work
 from .errors import InputError
 
 __all__ = ["Results", "save_results", "load_results", "atomic_path", "series", "check_single", "scenario_from_metadata",
@@ -38,17 +44,25 @@ __all__ = ["Results", "save_results", "load_results", "atomic_path", "series", "
 PathLike = Union[str, "os.PathLike[str]"]
 FORMATS = ("npz", "csv")
 _FORMAT_NAME = "multipendulum-results"
-_FORMAT_VERSION = 1
+_FORMAT_VERSION = 2
 _SERIES = ("t", "theta", "omega", "p", "energy", "work", "energy_error", "positions")
+#: Series of format 2: the pivot's position and the work's parts (every run), the cart's
+#: position and velocity (a run with a cart).
+_BASE_SERIES = ("pivot", "work_torque", "work_pivot", "work_cart", "dissipated")
+_CART_SERIES = ("cart_x", "cart_v")
+_WORK_PARTS = {"work_torque": "torque", "work_pivot": "pivot", "work_cart": "cart", "dissipated": "dissipated"}
 _CHAIN_ARRAYS = ("lengths", "masses", "com", "inertia")
+_LOSS_ARRAYS = ("damping", "friction")
 _STATS = ("steps", "rejected", "evaluations", "iterations", "energy_error", "wall_time")
 
 
 class Results:
     """A loaded results file. It has the arrays of a solution (``t``, ``theta``, ``omega``,
-    ``p``, ``energy``, ``work``, ``energy_error``, ``positions``), the chain's parameters, and
-    ``metadata`` (a dict: ``version``, ``method``, ``stats``, ``scenario`` ...), so it can be
-    passed to :func:`multipendulum.plot` and :func:`multipendulum.animate` like a solution."""
+    ``p``, ``energy``, ``work`` (a :class:`multipendulum.Work`: the net work, with its parts),
+    ``energy_error``, ``positions``, ``pivot``, ``cart_x``, ``cart_v``), the chain's parameters
+    (``cart`` a :class:`multipendulum.Cart` or ``None``), and ``metadata`` (a dict: ``version``,
+    ``method``, ``stats``, ``scenario`` ...), so it can be passed to :func:`multipendulum.plot`
+    and :func:`multipendulum.animate` like a solution."""
 
     def __init__(self, arrays: Dict[str, np.ndarray], metadata: Dict[str, Any], path: Optional[Path] = None):
         self.t = arrays["t"]
@@ -56,14 +70,22 @@ class Results:
         self.omega = arrays["omega"]
         self.p = arrays["p"]
         self.energy = arrays["energy"]
-        self.work = arrays["work"]
+        self.work = Work(*(arrays[name] for name in _WORK_PARTS))
         self.energy_error = arrays["energy_error"]
         self.positions = arrays["positions"]
+        self.pivot = arrays["pivot"]
+        self.cart_x: Optional[np.ndarray] = arrays.get("cart_x")
+        self.cart_v: Optional[np.ndarray] = arrays.get("cart_v")
         self.lengths = arrays["lengths"]
         self.masses = arrays["masses"]
         self.com = arrays["com"]
         self.inertia = arrays["inertia"]
+        self.damping = arrays["damping"]
+        self.friction = arrays["friction"]
         self.g = float(np.asarray(arrays["g"]).reshape(()))
+        self.friction_velocity = float(np.asarray(arrays["friction_velocity"]).reshape(()))
+        cart = arrays.get("cart")
+        self.cart: Optional[Cart] = None if cart is None else Cart(float(cart[0]), float(cart[1]))
         self.metadata = metadata
         self.path = path
         self._chain = None
@@ -89,7 +111,9 @@ class Results:
         """The :class:`multipendulum.Chain` rebuilt from the stored parameters."""
         if self._chain is None:
             self._chain = Chain(
-                lengths=self.lengths, masses=self.masses, com=self.com, inertia=self.inertia, g=self.g
+                lengths=self.lengths, masses=self.masses, com=self.com, inertia=self.inertia, g=self.g,
+                damping=self.damping, friction=self.friction, friction_velocity=self.friction_velocity,
+                cart=self.cart,
             )
         return self._chain
 
@@ -170,16 +194,28 @@ def check_single(sol: Any, what: str) -> None:
         raise InputError(f"{what} takes one run with theta of shape (T, N), got shape {shape}")
 
 
+def _floats(value: Any) -> np.ndarray:
+    return np.ascontiguousarray(np.asarray(value, dtype=np.float64))
+
+
 def _collect(sol: Any) -> Dict[str, np.ndarray]:
     """The arrays of a solution or of loaded results, as float64 C-contiguous arrays."""
     check_single(sol, "save_results")
     arrays = {}
     for name in _SERIES:
-        arrays[name] = np.ascontiguousarray(np.asarray(getattr(sol, name), dtype=np.float64))
+        arrays[name] = _floats(getattr(sol, name))
+    arrays["pivot"] = _floats(sol.pivot)
+    for name, part in _WORK_PARTS.items():
+        arrays[name] = _floats(getattr(sol.work, part))
     chain = sol if isinstance(sol, Results) else sol.chain
-    for name in _CHAIN_ARRAYS:
-        arrays[name] = np.ascontiguousarray(np.asarray(getattr(chain, name), dtype=np.float64))
+    if chain.cart is not None:
+        for name in _CART_SERIES:
+            arrays[name] = _floats(getattr(sol, name))
+        arrays["cart"] = _floats([chain.cart.mass, chain.cart.damping])
+    for name in _CHAIN_ARRAYS + _LOSS_ARRAYS:
+        arrays[name] = _floats(getattr(chain, name))
     arrays["g"] = np.asarray(float(chain.g), dtype=np.float64)
+    arrays["friction_velocity"] = np.asarray(float(chain.friction_velocity), dtype=np.float64)
     t_count, n = arrays["theta"].shape
     for name in ("omega", "p"):
         if arrays[name].shape != (t_count, n):
@@ -237,31 +273,37 @@ def save_results(sol: Any, path: PathLike, scenario: Any = None, format: Optiona
     return path
 
 
-def _csv_columns(n: int) -> list:
+def _csv_columns(n: int, cart: bool = False, version: int = _FORMAT_VERSION) -> list:
     cols = ["t"]
     for name in ("theta", "omega", "p"):
         cols += [f"{name}_{i + 1}" for i in range(n)]
     cols += ["energy", "work", "energy_error"]
     for i in range(n):
         cols += [f"x_{i + 1}", f"y_{i + 1}"]
+    if version >= 2:
+        cols += ["pivot_x", "pivot_y", *_BASE_SERIES[1:]] + (list(_CART_SERIES) if cart else [])
     return cols
 
 
 def _csv_text(arrays: Dict[str, np.ndarray], meta: Dict[str, Any]) -> str:
     n = arrays["theta"].shape[1]
     t_count = arrays["t"].shape[0]
-    chain = {k: arrays[k].tolist() for k in _CHAIN_ARRAYS}
+    chain: Dict[str, Any] = {k: arrays[k].tolist() for k in _CHAIN_ARRAYS + _LOSS_ARRAYS}
     chain["g"] = float(arrays["g"])
+    chain["friction_velocity"] = float(arrays["friction_velocity"])
+    cart = arrays.get("cart")
+    chain["cart"] = None if cart is None else {"mass": float(cart[0]), "damping": float(cart[1])}
     meta = dict(meta, chain=chain)
     table = np.column_stack([
         arrays["t"], arrays["theta"], arrays["omega"], arrays["p"],
         arrays["energy"], arrays["work"], arrays["energy_error"],
-        arrays["positions"].reshape(t_count, 2 * n),
+        arrays["positions"].reshape(t_count, 2 * n), arrays["pivot"],
+        *(arrays[k] for k in _BASE_SERIES[1:]), *(arrays[k] for k in _CART_SERIES if cart is not None),
     ])
     buf = io.StringIO()
     buf.write(f"# {_FORMAT_NAME} (format {_FORMAT_VERSION}), CSV; one row per sample, SI units, angles in rad\n")
     buf.write("# metadata: " + json.dumps(meta) + "\n")
-    buf.write(",".join(_csv_columns(n)) + "\n")
+    buf.write(",".join(_csv_columns(n, cart is not None)) + "\n")
     np.savetxt(buf, table, fmt="%.17g", delimiter=",")
     return buf.getvalue()
 
@@ -273,12 +315,18 @@ def series(sol: Any, what: str = "plotting") -> SimpleNamespace:
     check_single(sol, what)
     is_results = isinstance(sol, Results)
     params = sol if is_results else sol.chain
+    cart_x = getattr(sol, "cart_x", None)
     view = SimpleNamespace(
         t=np.asarray(sol.t, dtype=float),
         theta=np.asarray(sol.theta, dtype=float),
         omega=np.asarray(sol.omega, dtype=float),
         energy_error=np.asarray(sol.energy_error, dtype=float),
         positions=np.asarray(sol.positions, dtype=float),
+        # The base: the pivot's lab position (T, 2) and, with a cart, its x (T,) and parameters.
+        pivot=np.asarray(sol.pivot, dtype=float),
+        cart_x=None if cart_x is None else np.asarray(cart_x, dtype=float),
+        cart=params.cart,
+        work=sol.work,
         lengths=np.asarray(params.lengths, dtype=float),
         masses=np.asarray(params.masses, dtype=float),
         com=np.asarray(params.com, dtype=float),
@@ -337,6 +385,10 @@ def load_results(path: PathLike) -> Results:
     return _load_csv(path)
 
 
+#: Members a results file of format 2 may hold beyond format 1's (absent from format 1 files).
+_OPTIONAL = _BASE_SERIES + _CART_SERIES + _LOSS_ARRAYS + ("friction_velocity", "cart")
+
+
 def _load_npz(path: Path) -> Results:
     members = ("metadata",) + _SERIES + _CHAIN_ARRAYS + ("g",)
     try:
@@ -344,7 +396,7 @@ def _load_npz(path: Path) -> Results:
             missing = [k for k in members if k not in data.files]
             if missing:
                 raise _damaged(path, f"not a multipendulum results file: missing {', '.join(missing)}")
-            arrays = {k: np.asarray(data[k]) for k in _SERIES + _CHAIN_ARRAYS + ("g",)}
+            arrays = {k: np.asarray(data[k]) for k in members[1:] + _OPTIONAL if k in data.files}
             text = data["metadata"][()]
     except InputError:
         raise
@@ -381,9 +433,18 @@ def _checked(path: Path, arrays: Dict[str, Any]) -> Dict[str, np.ndarray]:
     if theta.ndim != 2 or theta.shape[0] < 1 or theta.shape[1] < 1:
         raise _damaged(path, f"theta must have shape (T, N) with T, N >= 1, got {theta.shape}")
     t_count, n = theta.shape
+    if ("cart" in out) != ("cart_x" in out and "cart_v" in out):
+        raise _damaged(path, "a run with a cart stores cart (its mass and damping), cart_x and cart_v; "
+                             f"got only {', '.join(k for k in ('cart', 'cart_x', 'cart_v') if k in out)}")
+    _fill_format_1(out, t_count, n)
     expected = {"t": (t_count,), "omega": (t_count, n), "p": (t_count, n), "energy": (t_count,),
                 "work": (t_count,), "energy_error": (t_count,), "positions": (t_count, n, 2),
-                "lengths": (n,), "masses": (n,), "com": (n,), "inertia": (n,), "g": ()}
+                "pivot": (t_count, 2), "work_torque": (t_count,), "work_pivot": (t_count,),
+                "work_cart": (t_count,), "dissipated": (t_count,),
+                "lengths": (n,), "masses": (n,), "com": (n,), "inertia": (n,), "damping": (n,), "friction": (n,),
+                "g": (), "friction_velocity": ()}
+    if "cart" in out:
+        expected.update(cart_x=(t_count,), cart_v=(t_count,), cart=(2,))
     for name, shape in expected.items():
         if out[name].shape != shape:
             raise _damaged(path, f"{name} must have shape {shape} to fit theta's {theta.shape} "
@@ -399,6 +460,22 @@ def _checked(path: Path, arrays: Dict[str, Any]) -> Dict[str, np.ndarray]:
         raise _damaged(path, f"t must be ascending, got t[{i}] = {float(t[i])!r} after t[{i - 1}] = "
                              f"{float(t[i - 1])!r}")
     return out
+
+
+def _fill_format_1(arrays: Dict[str, np.ndarray], t_count: int, n: int) -> None:
+    """What a file of format 1 did not store, as it was then: a fixed pivot at the origin, all
+    the work the torque's, no losses (friction_velocity: the API's default, unused)."""
+    import inspect
+
+    if "work_torque" not in arrays and "work" in arrays:
+        arrays["work_torque"] = arrays["work"]
+    arrays.setdefault("pivot", np.zeros((t_count, 2)))
+    for name in ("work_pivot", "work_cart", "dissipated"):
+        arrays.setdefault(name, np.zeros(t_count))
+    for name in _LOSS_ARRAYS:
+        arrays.setdefault(name, np.zeros(n))
+    arrays.setdefault("friction_velocity",
+                      np.asarray(float(inspect.signature(Chain).parameters["friction_velocity"].default)))
 
 
 def _load_csv(path: Path) -> Results:
@@ -427,10 +504,15 @@ def _load_csv(path: Path) -> Results:
         n = len(chain["lengths"])
     except TypeError:
         raise _damaged(path, "the metadata's chain lengths must be a list") from None
+    cart = chain.get("cart")
+    if cart is not None and (not isinstance(cart, dict) or any(k not in cart for k in ("mass", "damping"))):
+        raise _damaged(path, "the metadata's chain cart must be null or give mass and damping")
+    version = 1 if metadata.get("format_version", 1) == 1 else 2
+    wanted = _csv_columns(n, cart is not None, version)
     columns = lines[header_index].split(",")
-    if columns != _csv_columns(n):
+    if columns != wanted:
         raise _damaged(path, f"unexpected CSV columns for N = {n} links: expected "
-                             f"{','.join(_csv_columns(n)[:4])},... ({len(_csv_columns(n))} columns), "
+                             f"{','.join(wanted[:4])},... ({len(wanted)} columns), "
                              f"got {len(columns)} starting {','.join(columns[:4])!r}")
     body = lines[header_index + 1:]
     if not any(line.strip() for line in body):
@@ -442,17 +524,25 @@ def _load_csv(path: Path) -> Results:
     if table.shape[1] != len(columns):
         raise _csv_problem(path, body, header_index + 2, columns)
     t_count = table.shape[0]
-    cuts = np.cumsum([1, n, n, n, 1, 1, 1])
+    cuts = np.cumsum([1, n, n, n, 1, 1, 1, 2 * n])
     parts = np.split(table, cuts, axis=1)
     arrays = {
         "t": parts[0][:, 0], "theta": parts[1], "omega": parts[2], "p": parts[3],
         "energy": parts[4][:, 0], "work": parts[5][:, 0], "energy_error": parts[6][:, 0],
         "positions": parts[7].reshape(t_count, n, 2),
     }
+    if version >= 2:
+        rest = parts[8]
+        arrays["pivot"] = rest[:, :2]
+        names = _BASE_SERIES[1:] + (_CART_SERIES if cart is not None else ())
+        arrays.update({name: rest[:, 2 + k] for k, name in enumerate(names)})
     try:
         arrays["g"] = np.asarray(chain["g"], dtype=np.float64)
-        for k in _CHAIN_ARRAYS:
-            arrays[k] = np.asarray(chain[k], dtype=np.float64)
+        for k in _CHAIN_ARRAYS + _LOSS_ARRAYS + ("friction_velocity",):
+            if k in chain:
+                arrays[k] = np.asarray(chain[k], dtype=np.float64)
+        if cart is not None:
+            arrays["cart"] = np.asarray([cart["mass"], cart["damping"]], dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise _damaged(path, f"the metadata's chain is not numbers: {exc}") from None
     return Results(_checked(path, arrays), metadata, path)

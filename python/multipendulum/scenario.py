@@ -26,6 +26,16 @@ The format is documented, with an annotated example, in ``docs/cli.md``. In shor
     [output]
     animation = "pendulum.gif"
 
+Losses and a moving base (all optional)::
+
+    [chain]
+    damping = 0.05               # N m s/rad at each joint; friction (N m), friction_velocity (rad/s)
+    [pivot]                      # a prescribed pivot motion (m): a number, or a signal table
+    y = { kind = "sinusoid", amplitude = 0.02, frequency = 200.0 }
+    [cart]                       # or the pivot on a cart (not both)
+    mass = 1.0
+    force = { kind = "sinusoid", amplitude = 2.0, frequency = 3.0 }
+
 This module validates and converts; the physics (and its own validation) is in the core.
 """
 from __future__ import annotations
@@ -50,6 +60,7 @@ except ModuleNotFoundError:  # pragma: no cover - Python 3.9/3.10
 
 import multipendulum._core as _core
 
+from ._base import Cart, Pivot
 from ._chain import Chain
 from ._convert import is_float
 from ._simulate import simulate
@@ -59,6 +70,8 @@ from .errors import InputError
 __all__ = [
     "Scenario",
     "TorqueSpec",
+    "SignalSpec",
+    "CartSpec",
     "Outputs",
     "ScenarioError",
     "load_scenario",
@@ -139,6 +152,43 @@ class TorqueSpec:
 
 
 @dataclass(frozen=True)
+class SignalSpec:
+    """One number as a function of time, read from a scenario: a pivot axis (m) or the cart's
+    force (N). ``kind`` is ``"constant"`` (``params["value"]``), ``"sinusoid"``
+    (``amplitude``, ``frequency`` in rad/s, ``phase`` in rad, ``offset``) or ``"table"`` (``t``,
+    ``values`` and ``interpolation``; a pivot's table is always ``"cubic"``). ``file`` is the CSV
+    file a table came from, if any."""
+
+    kind: str
+    params: Dict[str, Any]
+    file: Optional[str] = None
+
+    def build(self) -> Any:
+        """A number, an :class:`multipendulum.Sinusoid` or a :class:`multipendulum.Table`."""
+        p = self.params
+        if self.kind == "constant":
+            return float(p["value"])
+        if self.kind == "sinusoid":
+            return Sinusoid(p["amplitude"], p["frequency"], phase=p["phase"], offset=p["offset"])
+        if self.kind == "table":
+            return Table(np.asarray(p["t"], dtype=float), np.asarray(p["values"], dtype=float),
+                         kind=p["interpolation"])
+        raise AssertionError(self.kind)  # kinds are checked when the file is read
+
+
+@dataclass(frozen=True)
+class CartSpec:
+    """The cart read from ``[cart]``: ``mass`` (kg), viscous ``damping`` (N s/m), the initial
+    position ``x0`` (m) and velocity ``v0`` (m/s), and the applied ``force`` (or ``None``)."""
+
+    mass: float
+    damping: float = 0.0
+    x0: float = 0.0
+    v0: float = 0.0
+    force: Optional[SignalSpec] = None
+
+
+@dataclass(frozen=True)
 class Outputs:
     """What ``multipendulum run`` writes, from ``[output]`` (file names are inside ``-o DIR``)."""
 
@@ -172,6 +222,8 @@ class Scenario:
     sample_dt: float = 0.01
     form: Optional[str] = None
     torque: Optional[TorqueSpec] = None
+    pivot: Optional[Dict[str, SignalSpec]] = None
+    cart: Optional[CartSpec] = None
     outputs: Outputs = field(default_factory=Outputs)
     raw: Dict[str, Any] = field(default_factory=dict, repr=False)
     text: str = field(default="", repr=False)
@@ -186,12 +238,15 @@ class Scenario:
     def build_chain(self):
         """The :class:`multipendulum.Chain` this scenario describes."""
         c = self.chain
+        # Only what the file gives: the core's defaults stand for the rest.
+        losses = {k: c[k] for k in ("damping", "friction", "friction_velocity") if k in c}
+        cart = None if self.cart is None else Cart(self.cart.mass, self.cart.damping)
         try:
             if c["kind"] == "rods":
-                return Chain.rods(lengths=c["lengths"], masses=c["masses"], g=c["g"])
+                return Chain.rods(lengths=c["lengths"], masses=c["masses"], g=c["g"], cart=cart, **losses)
             return Chain(
                 lengths=c["lengths"], masses=c["masses"], com=c.get("com"),
-                inertia=c.get("inertia"), g=c["g"],
+                inertia=c.get("inertia"), g=c["g"], cart=cart, **losses,
             )
         except ScenarioError:
             raise
@@ -208,6 +263,33 @@ class Scenario:
             raise
         except InputError as exc:
             raise ScenarioError(compact_numbers(str(exc)), key="torque", path=self.path) from exc
+
+    def build_base(self) -> Dict[str, Any]:
+        """What moves the chain's base, as :func:`multipendulum.simulate` takes it:
+        ``{"pivot": ...}``, or ``{"cart_x0": ..., "cart_v0": ..., "cart_force": ...}`` (the force
+        only when the file gives one), or nothing for a fixed pivot at the origin."""
+        if self.pivot is not None:
+            return {"pivot": Pivot(**{axis: spec.build() for axis, spec in self.pivot.items()})}
+        if self.cart is not None:
+            kwargs: Dict[str, Any] = {"cart_x0": self.cart.x0, "cart_v0": self.cart.v0}
+            if self.cart.force is not None:
+                kwargs["cart_force"] = self.cart.force.build()
+            return kwargs
+        return {}
+
+    def check_base(self, chain: Any) -> None:
+        """Have the core evaluate the pivot's motion and the cart's force once, so what it
+        refuses (a table it cannot fit, a non-finite value) is refused now, naming the key."""
+        for axis, spec in (self.pivot or {}).items():
+            try:
+                Pivot(**{axis: spec.build()}).position(np.zeros(1))
+            except InputError as exc:
+                raise ScenarioError(compact_numbers(str(exc)), key=f"pivot.{axis}", path=self.path) from None
+        if self.cart is not None and self.cart.force is not None:
+            try:
+                chain.accelerations(self.theta0, self.omega0, cart_v=self.cart.v0, cart_force=self.cart.force.build())
+            except InputError as exc:
+                raise ScenarioError(compact_numbers(str(exc)), key="cart.force", path=self.path) from None
 
     def sample_count(self) -> float:
         """How many samples :meth:`t_eval` gives (a float: it is checked before it is made)."""
@@ -280,6 +362,7 @@ class Scenario:
         if self.form is not None:  # only when the file asks: the core picks the natural one otherwise
             kwargs["form"] = self.form
         kwargs.update(self.build_torque())
+        kwargs.update(self.build_base())
         return kwargs
 
     def run(self, progress: Any = None):
@@ -401,8 +484,9 @@ def loads_scenario(
     # Build what the core will be given, so its own checks fail now rather than mid-run. (The
     # run's own limits, check_limits, are checked by what runs it: the viewer and flip maps
     # take a scenario's chain without storing its samples.)
-    scenario.build_chain()
+    chain = scenario.build_chain()
     scenario.build_torque()
+    scenario.check_base(chain)
     return scenario
 
 
@@ -410,14 +494,22 @@ def loads_scenario(
 # The checker
 
 
-_TOP_KEYS = ("name", "description", "chain", "initial", "simulation", "torque", "output")
-_CHAIN_KEYS = ("kind", "n", "lengths", "masses", "com", "inertia", "g")
+_TOP_KEYS = ("name", "description", "chain", "initial", "simulation", "torque", "pivot", "cart", "output")
+_CHAIN_KEYS = ("kind", "n", "lengths", "masses", "com", "inertia", "g", "damping", "friction", "friction_velocity")
 _INITIAL_KEYS = ("unit", "theta", "omega")
 _SIM_KEYS = ("t_end", "method", "dt", "rtol", "atol", "sample_dt", "form")
 _TORQUE_KEYS = {
     "constant": ("kind", "convention", "value"),
     "sinusoid": ("kind", "convention", "amplitude", "frequency", "phase", "offset"),
     "table": ("kind", "convention", "file", "interpolation"),
+}
+_PIVOT_KEYS = ("x", "y")
+_CART_KEYS = ("mass", "damping", "x0", "v0", "force")
+#: The keys of a signal given as a table (a pivot axis, the cart force), by kind; a constant
+#: signal is a plain number.
+_SIGNAL_KEYS = {
+    "sinusoid": ("kind", "amplitude", "frequency", "phase", "offset"),
+    "table": ("kind", "t", "values", "file", "interpolation"),
 }
 _OUTPUT_KEYS = ("results", "animation", "plots", "fps", "trail", "speed", "dpi")
 _RAMP_KEYS = ("from", "to")
@@ -605,12 +697,17 @@ class _Reader:
         theta0, omega0 = self.initial(self.require(raw, "", "initial", "an [initial] table with unit and theta"), n)
         sim = self.simulation(self.require(raw, "", "simulation", "a [simulation] table with t_end"))
         torque = self.torque(raw["torque"], n) if "torque" in raw else None
+        pivot = self.pivot(raw["pivot"]) if "pivot" in raw else None
+        cart = self.cart(raw["cart"]) if "cart" in raw else None
+        if pivot is not None and cart is not None:
+            raise self.error("pivot", "cannot be given with [cart]: the cart carries the pivot (push it with "
+                             "cart.force instead)")
         outputs = self.outputs(raw.get("output", {}))
         if not name and self.path is not None:
             name = self.path.stem
         return Scenario(
             name=name, description=description, chain=chain, theta0=theta0, omega0=omega0,
-            torque=torque, outputs=outputs, raw=copy.deepcopy(raw), text=text, path=self.path,
+            torque=torque, pivot=pivot, cart=cart, outputs=outputs, raw=copy.deepcopy(raw), text=text, path=self.path,
             files=dict(self.used_files), **sim,
         )
 
@@ -641,6 +738,11 @@ class _Reader:
                                      f"to give {name} explicitly")
                 out[name] = self.per_link(t[name], f"chain.{name}", n, **rule)
         out["g"] = self.number(t.get("g", 9.81), "chain.g")
+        for name in ("damping", "friction"):  # one value per joint; joint i hangs link i
+            if name in t:
+                out[name] = self.per_link(t[name], f"chain.{name}", n, nonneg=True)
+        if "friction_velocity" in t:
+            out["friction_velocity"] = self.number(t["friction_velocity"], "chain.friction_velocity", positive=True)
         return out
 
     def initial(self, raw: Any, n: int) -> Tuple[np.ndarray, np.ndarray]:
@@ -726,12 +828,89 @@ class _Reader:
         interpolation = self.choice(t.get("interpolation", "linear"), "torque.interpolation", ("linear", "cubic"))
         times, values, lines, header = self.csv_table(self.read_file(name, "torque.file"), name, n)
         if interpolation == "cubic":
-            self.check_spline(name, times, values, lines, header)
+            self.check_spline("torque.interpolation", times, values, _csv_place(name, lines, header),
+                              'use interpolation = "linear" or smaller torques')
         return TorqueSpec(kind, convention, {"t": times, "values": values, "interpolation": interpolation}, file=name)
 
-    def check_spline(self, name: str, times, values, lines, header) -> None:
+    def pivot(self, raw: Any) -> Dict[str, SignalSpec]:
+        t = self.table(raw, "pivot", _PIVOT_KEYS)
+        return {axis: self.signal(t[axis], f"pivot.{axis}", "m", cubic=True) for axis in _PIVOT_KEYS if axis in t}
+
+    def cart(self, raw: Any) -> CartSpec:
+        t = self.table(raw, "cart", _CART_KEYS)
+        force = self.signal(t["force"], "cart.force", "N", cubic=False) if "force" in t else None
+        return CartSpec(
+            mass=self.number(self.require(t, "cart", "mass", "the cart's mass in kg (a number > 0)"), "cart.mass",
+                             positive=True),
+            damping=self.number(t.get("damping", 0.0), "cart.damping", nonneg=True),
+            x0=self.number(t.get("x0", 0.0), "cart.x0"),
+            v0=self.number(t.get("v0", 0.0), "cart.v0"),
+            force=force,
+        )
+
+    def signal(self, raw: Any, key: str, unit: str, *, cubic: bool) -> SignalSpec:
+        """A number (constant), or a table ``{kind = "sinusoid", amplitude, frequency, phase,
+        offset}`` or ``{kind = "table", t = [...], values = [...]}`` / ``{kind = "table", file =
+        "x.csv"}`` (columns t and the value, as a torque table). ``cubic``: a table is always a
+        cubic spline (a pivot's motion needs two derivatives), so it takes no interpolation."""
+        if _is_number(raw):
+            return SignalSpec("constant", {"value": self.number(raw, key)})
+        if not isinstance(raw, dict):
+            raise self.error(key, f'expected a number ({unit}) or a table {{kind = "sinusoid" or "table", ...}}, '
+                             f"got {_type_name(raw)} {_describe(raw)}")
+        kind = self.choice(self.require(raw, key, "kind", '"sinusoid" or "table"'), f"{key}.kind", tuple(_SIGNAL_KEYS))
+        allowed = tuple(k for k in _SIGNAL_KEYS[kind] if not (cubic and k == "interpolation"))
+        t = self.table(raw, key, allowed)
+        if kind == "sinusoid":
+            return SignalSpec(kind, {
+                "amplitude": self.number(self.require(t, key, "amplitude", f"the amplitude in {unit}"),
+                                         f"{key}.amplitude"),
+                "frequency": self.number(self.require(t, key, "frequency", "the angular frequency in rad/s"),
+                                         f"{key}.frequency"),
+                "phase": self.number(t.get("phase", 0.0), f"{key}.phase"),
+                "offset": self.number(t.get("offset", 0.0), f"{key}.offset"),
+            })
+        interpolation = "cubic" if cubic else self.choice(t.get("interpolation", "linear"), f"{key}.interpolation",
+                                                          ("linear", "cubic"))
+        where = _join(key, "interpolation") if not cubic else key
+        advice = ('use interpolation = "linear" or smaller values' if not cubic
+                  else "use smaller values or samples further apart")
+        if "file" in t:
+            for name in ("t", "values"):
+                if name in t:
+                    raise self.error(f"{key}.{name}", "cannot be given with file: a table is either a CSV file "
+                                     "or the arrays t and values")
+            name = t["file"]
+            if not isinstance(name, str) or not name:
+                raise self.error(f"{key}.file", f"expected a file name, got {_type_name(name)} {_describe(name)}")
+            label = key.rsplit(".", 1)[-1]
+            times, rows, lines, header = self.csv_table(
+                self.read_file(name, f"{key}.file"), name, 1, key=f"{key}.file", labels=(label,),
+                columns=f"t, then {label} in {unit}", limit=f"values must be below about 1e307 {unit}")
+            if interpolation == "cubic":
+                self.check_spline(where, times, rows, _csv_place(name, lines, header, (label,)), advice)
+            return SignalSpec(kind, {"t": times, "values": [r[0] for r in rows], "interpolation": interpolation},
+                              file=name)
+        times = self.numbers(self.require(t, key, "t", 'sample times in s (an array), or file = "NAME.csv"'),
+                             f"{key}.t")
+        values = self.numbers(self.require(t, key, "values", f"values in {unit}, one per time in t"), f"{key}.values")
+        if len(values) != len(times):
+            raise self.error(f"{key}.values", f"expected {len(times)} values (one per time in t), got {len(values)}")
+        # How many samples a spline needs, and that times increase, the core checks (check_base).
+        if interpolation == "cubic" and len(times) >= 2 and all(b > a for a, b in zip(times, times[1:])):
+            self.check_spline(where, times, [[v] for v in values],
+                              lambda row, j: f"values[{row}] and values[{row + 1}]", advice)
+        return SignalSpec(kind, {"t": times, "values": values, "interpolation": interpolation})
+
+    def numbers(self, value: Any, key: str) -> List[float]:
+        if not isinstance(value, list):
+            raise self.error(key, f"expected an array of numbers, got {_type_name(value)} {_describe(value)}")
+        return [self.number(v, f"{key}[{i}]") for i, v in enumerate(value)]
+
+    def check_spline(self, key: str, times, values, place: Callable[[int, int], str], advice: str) -> None:
         """The natural cubic spline the core fits must stay finite: its second derivatives grow
-        like 6 |du| / dt^2, which overflows for huge torques on close times."""
+        like 6 |du| / dt^2, which overflows for huge values on close times. ``place(row, j)``
+        names sample ``row`` of column ``j`` in the message."""
         t = np.asarray(times, dtype=float)
         u = np.asarray(values, dtype=float)
         with np.errstate(over="ignore", invalid="ignore"):
@@ -746,23 +925,23 @@ class _Reader:
             row += 1
         else:
             row, j = (int(v) for v in np.argwhere(bad)[0])
-        label = f"link {j + 1}" + (f", {header[j + 1]!r}" if header is not None and j + 1 < len(header) else "")
-        raise self.error("torque.interpolation",
-                         f'{name} lines {lines[row]}-{lines[row + 1]}, column {j + 2} ({label}): the cubic spline through '
-                         f"{_num(u[row, j])} at t = {_num(t[row])} and {_num(u[row + 1, j])} at t = {_num(t[row + 1])} "
-                         'overflows; use interpolation = "linear" or smaller torques')
+        raise self.error(key, f"{place(row, j)}: the cubic spline through {_num(u[row, j])} at t = {_num(t[row])} "
+                         f"and {_num(u[row + 1, j])} at t = {_num(t[row + 1])} overflows; {advice}")
 
-    def csv_table(self, text: str, name: str, n: int) -> Tuple[List[float], List[List[float]]]:
-        """A torque table: lines of ``t, u_1, ..., u_N`` (``#`` comments and one header line
-        allowed). Every message names the file's line and, for a bad value, its column (1 is
-        ``t``, column k + 1 the torque of link k, or the header's name for it)."""
-        key = "torque.file"
+    def csv_table(self, text: str, name: str, n: int, *, key: str = "torque.file",
+                  labels: Optional[Sequence[str]] = None, columns: str = "t, then one torque per link",
+                  limit: str = "torques must be below about 1e307 N m") -> Tuple[List[float], List[List[float]], List[int], Optional[List[str]]]:
+        """A table of ``n`` values a time: lines of ``t, u_1, ..., u_n`` (``#`` comments and one
+        header line allowed); a torque table by default. Every message names the file's line
+        and, for a bad value, its column (1 is ``t``, column k + 1 the value ``labels[k - 1]``,
+        ``link k`` for a torque, or the header's name for it). Returns the times, the rows of
+        values, their line numbers and the header (or ``None``)."""
         rows: List[List[float]] = []
         lines: List[int] = []
         header: Optional[List[str]] = None
 
         def column(j: int) -> str:
-            label = "t" if j == 0 else f"link {j}"
+            label = "t" if j == 0 else (labels[j - 1] if labels is not None else f"link {j}")
             if header is not None and j < len(header) and header[j]:
                 return f"column {j + 1} ({header[j]!r}, {label})"
             return f"column {j + 1} ({label})"
@@ -776,8 +955,8 @@ class _Reader:
                 header = cells  # a header line (names for the columns)
                 continue
             if len(cells) != n + 1:
-                raise self.error(key, f"{name} line {lineno}: expected {n + 1} columns (t, then one torque "
-                                 f"per link), got {len(cells)}")
+                raise self.error(key, f"{name} line {lineno}: expected {n + 1} columns ({columns}), "
+                                 f"got {len(cells)}")
             numbers = []
             for j, cell in enumerate(cells):
                 if not is_float(cell):
@@ -794,7 +973,7 @@ class _Reader:
                     if not math.isfinite(numbers[j] - rows[-1][j]):
                         raise self.error(key, f"{name} line {lineno}, {column(j)}: the change from line "
                                          f"{lines[-1]} ({_num(rows[-1][j])} to {_num(numbers[j])}) overflows; "
-                                         "torques must be below about 1e307 N m")
+                                         f"{limit}")
             rows.append(numbers)
             lines.append(lineno)
         if len(rows) < 2:
@@ -831,6 +1010,17 @@ class _Reader:
             speed=self.number(t.get("speed", 1.0), "output.speed", positive=True),
             dpi=self.number(t.get("dpi", 80), "output.dpi", positive=True),
         )
+
+
+def _csv_place(name: str, lines: Sequence[int], header: Optional[Sequence[str]],
+               labels: Optional[Sequence[str]] = None) -> Callable[[int, int], str]:
+    """Names sample ``row``, value column ``j`` of a CSV table for a message: its lines and column."""
+    def place(row: int, j: int) -> str:
+        label = labels[j] if labels is not None else f"link {j + 1}"
+        if header is not None and j + 1 < len(header):
+            label += f", {header[j + 1]!r}"
+        return f"{name} lines {lines[row]}-{lines[row + 1]}, column {j + 2} ({label})"
+    return place
 
 
 def _join(key: str, name: str) -> str:
