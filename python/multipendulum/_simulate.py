@@ -152,6 +152,14 @@ class Work(np.lib.mixins.NDArrayOperatorsMixin):
     def shape(self) -> Tuple[int, ...]:
         return self.torque.shape
 
+    @property
+    def ndim(self) -> int:
+        return self.torque.ndim
+
+    @property
+    def dtype(self) -> np.dtype[Any]:
+        return self.torque.dtype
+
     def __repr__(self) -> str:
         return f"Work(shape={self.shape}, net[-1]={self.net.reshape(-1)[-1] if self.net.size else None})"
 
@@ -271,6 +279,8 @@ class Solution:
             return None, "not estimated under a torque given as a Python function"
         if self._joint:
             return None, "not estimated under joint-motor torques"
+        if getattr(self, "_pivot", None) is not None or self.chain.cart is not None:
+            return None, "not estimated with a moving pivot or a cart (the estimate's Lyapunov run has a fixed pivot)"
         if self.n > self.TRUST_MAX_LINKS:
             return None, f"not estimated for chains of more than {self.TRUST_MAX_LINKS} links"
         span = float(min(self.t[-1], horizon))

@@ -192,7 +192,8 @@ pub(crate) fn force(py: Python<'_>, spec: Option<PyRef<'_, PyCartForce>>, errors
         ForceKind::Table(t, v, interp) => Builtin::table(1, t.clone(), v.clone(), *interp),
         ForceKind::Function(f) => return Ok(Some(core::Force::Function(Arc::new(ForceCall { f: f.clone_ref(py), errors: errors.clone() })))),
     };
-    let b = b.map_err(|e| to_py(py, Error::input(format!("cart_force: {e}"))))?;
+    // (The tables are the torques'; the message is about the force.)
+    let b = b.map_err(|e| to_py(py, Error::input(format!("cart_force: {}", e.to_string().replace("a torque table", "a table")))))?;
     Ok(Some(core::Force::Builtin(b)))
 }
 

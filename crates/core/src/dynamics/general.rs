@@ -131,15 +131,15 @@ impl Chain {
         let [gx, gy] = load.gravity;
         // Gravity and the centripetal pull of the links above; the cart's row gathers
         // sum_b h_b sin(theta_b) omega_b^2.
-        let (mut cu, mut su, mut pull) = (0.0, 0.0, 0.0);
+        let (mut cu, mut su) = (0.0, 0.0);
         for a in 0..n {
             let (s, c) = (ws.sin[a], ws.cos[a]);
             out[a] = tau[a] + h[a] * (gx * c + gy * s - (s * cu - c * su));
-            let w2 = omega[a] * omega[a];
-            cu += w2 * l[a] * c;
-            su += w2 * l[a] * s;
-            pull += h[a] * s * w2;
+            let w2l = omega[a] * omega[a] * l[a];
+            cu += w2l * c;
+            su += w2l * s;
         }
+        let pull = if self.cart.is_some() { (0..n).map(|a| h[a] * ws.sin[a] * omega[a] * omega[a]).sum() } else { 0.0 };
         let losses = if self.lossy_joints() { self.add_losses(omega, out) } else { 0.0 };
         let (mut cd, mut sd) = (0.0, 0.0);
         let art = self.eliminate(ws, out, |a, c, s| {
