@@ -5,7 +5,8 @@ was recorded before the run driver was rewritten (issue 11): a refactoring must 
 
 Not a promise across machines (libm may differ in the last bit): regenerate on purpose, with
 `python tests/bit_identity.py --record`, only when a change is meant to alter results, and say
-so in its commit.
+so in its commit. `--add` records the cases that have no hash yet (a new example scenario) and
+leaves every recorded one as it is.
 """
 import hashlib
 import json
@@ -118,6 +119,11 @@ if __name__ == "__main__":
     if "--record" in sys.argv:
         RECORD.write_text(json.dumps(got, indent=1, sort_keys=True) + "\n")
         print(f"recorded {len(got)} hashes in {RECORD}")
+    elif "--add" in sys.argv:
+        want = json.loads(RECORD.read_text())
+        new = {k: v for k, v in got.items() if k not in want}
+        RECORD.write_text(json.dumps({**want, **new}, indent=1, sort_keys=True) + "\n")
+        print(f"added {sorted(new)}; {sum(got[k] == want[k] for k in want)} of {len(want)} recorded ones identical")
     else:
         want = json.loads(RECORD.read_text())
         bad = [k for k in want if got.get(k) != want[k]]
