@@ -13,6 +13,9 @@ reported, not timed):
   (c) the 256 x 256 flip-map ensemble: bench/bench_flip.py, run as a subprocess.
   (d) work-precision diagrams against mpmath references (bench/reference.py): the double
       pendulum over 10 s from a chaotic state and a 10-link chain over 2 s.
+  (e) the model extensions of issue #13: a double inverted pendulum on a cart against MuJoCo,
+      and the cost of damping, friction, a moving pivot and a cart: bench/bench_model.py, run
+      as a subprocess.
 Speeds are measured in alternation (bench_engine.measure) so background load falls on every
 contender alike; times are medians of several repeats, with their ranges.
 """
@@ -44,6 +47,8 @@ BUILD = BENCH / "build"
 
 TARGET_MJ = {2: 30.0, 100: 50.0, 1000: 1000.0}  # MuJoCo time / ours per RK4 step, at least
 TARGET_FLIP = {"C SIMD + OpenMP": 1.0, "NumPy": 10.0, "JAX": 15.0}  # rate ratio, at least
+TARGET_CARTPOLE = 30.0  # MuJoCo RK4 time / ours per step on the cart-pole, at least
+TARGET_EXTENDED = 1.15  # extended / plain chain per evaluation, at most
 WP_RANGE = (1e-4, 1e-11)
 CHAIN_NS = (2, 10, 100, 200, 1000)
 PIN_MAX_N = 200  # pin.Model.createData() holds O(N^3) memory: ~4 GB at N = 400
@@ -191,6 +196,68 @@ def run_flip(quick, python):
     res.update(status="ok", rows=rows,
                md=out_md.read_text() if out_md.exists() else "")
     return res
+
+
+# ----------------------------------------------------------------------------- (e) model extensions
+
+
+def run_model(quick, python):
+    script = BENCH / "bench_model.py"
+    out_json, out_md = BUILD / "model.json", BUILD / "model.md"
+    for p in (out_json, out_md):
+        p.unlink(missing_ok=True)
+    cmd = [python, str(script), *(["--quick"] if quick else []), "--json", str(out_json),
+           "--md", str(out_md)]
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    res = {"cmd": " ".join(["bench/bench_model.py", *cmd[2:3 if quick else 2]]),
+           "seconds": time.perf_counter() - t0}
+    if not out_json.exists():
+        tail = (proc.stderr or proc.stdout).strip().splitlines()[-5:]
+        return {**res, "status": "failed", "why": f"exit code {proc.returncode}: "
+                + " / ".join(tail)}
+    data = json.loads(out_json.read_text())
+    res.update(status="ok" if proc.returncode == 0 else "partial", data=data,
+               md=out_md.read_text() if out_md.exists() else "")
+    return res
+
+
+def model_summary(model):
+    """Summary rows for (e), from bench_model's JSON."""
+    L = []
+    if model.get("status") not in ("ok", "partial"):
+        L.append(verdict_row("(e) cart-pole rk4 step vs MuJoCo RK4", "not run", "—", "—",
+                             f">= {TARGET_CARTPOLE:.0f}x", model.get("why", "not run")))
+        return L
+    cp = model["data"].get("cartpole", {})
+    label = "(e) double inverted pendulum on a cart, rk4 step vs MuJoCo RK4"
+    if "error" in cp:
+        L.append(verdict_row(label, "not run", "—", "—", f">= {TARGET_CARTPOLE:.0f}x",
+                             cp["error"]))
+    elif "ratio_rk4" not in cp:
+        L.append(verdict_row(label, "not timed", "—", "—", f">= {TARGET_CARTPOLE:.0f}x",
+                             "**MuJoCo disagrees**"))
+    else:
+        ps = cp["per_step"]
+        v = E.verdict_at_least(cp["ratio_rk4"], TARGET_CARTPOLE)
+        L.append(verdict_row(label, E.fmt_time(ps["ours"][0]),
+                             f"MuJoCo: {E.fmt_time(ps['mj_rk4'][0])}",
+                             f"{cp['ratio_rk4']:.0f}x faster", f">= {TARGET_CARTPOLE:.0f}x",
+                             v + " — see (e)" * (cp["ratio_rk4"] < TARGET_CARTPOLE)))
+    links = model["data"].get("links")
+    if isinstance(links, list) and links:
+        worst = max(links, key=lambda r: r["acc_ratio"]["extended"])
+        r = worst["acc_ratio"]["extended"]
+        L.append(verdict_row("(e) extended chain (damping, friction, moving pivot) / plain, "
+                             "per evaluation", E.fmt_time(worst["acc"]["extended"][0]) + "/link",
+                             f"plain: {E.fmt_time(worst['acc']['plain'][0])}/link",
+                             f"{r:.2f}x (worst, N = {worst['n']})", f"<= {TARGET_EXTENDED:g}x",
+                             E.verdict_at_most(r, TARGET_EXTENDED)
+                             + " — see (e)" * (r > TARGET_EXTENDED)))
+        L.append(verdict_row("(e) cart / plain chain, per evaluation (no target)", "—", "—",
+                             ", ".join(f"{x['acc_ratio']['cart']:.2f}x (N = {x['n']})"
+                                       for x in links), "—", "—"))
+    return L
 
 
 def flip_pick(rows, *words, exclude=()):
@@ -406,7 +473,7 @@ def verdict_row(label, ours, peer, ratio_text, target_text, verdict):
     return f"| {label} | {ours} | {peer} | {ratio_text} | {target_text} | {verdict} |"
 
 
-def summary(rk4, numba_dp, dop, chains, flip, wp):
+def summary(rk4, numba_dp, dop, chains, flip, wp, model=None):
     L = ["| target | multipendulum | peer | ratio | target | result |",
          "|---|---|---|---|---|---|"]
     if rk4.get("agree"):
@@ -482,11 +549,13 @@ def summary(rk4, numba_dp, dop, chains, flip, wp):
         v = "met" if not missed else "**missed**: " + "; ".join(missed) + " — why: see (d)"
         L.append(verdict_row(f"(d) best work-precision curve below every peer's, "
                              f"1e-4 … 1e-11: {prob['key']}", "—", "—", "—", "below all", v))
+    if model is not None:
+        L += model_summary(model)
     return "\n".join(L)
 
 
 def render(args, info, vers, c_cmd, elapsed, busy, rk4, numba_dp, acc_rows, acc_fit, dop,
-           chains, fits, flip, wp):
+           chains, fits, flip, wp, model=None):
     L = ["# Benchmarks: multipendulum against its peers", ""]
     mode = "--quick" if args.quick else "full"
     L.append(f"Generated by `{'make bench QUICK=1' if args.quick else 'make bench'}` "
@@ -502,9 +571,10 @@ def render(args, info, vers, c_cmd, elapsed, busy, rk4, numba_dp, acc_rows, acc_
                  "2-core machine); absolute times are noisy, ratios less so: "
                  + "; ".join(busy[:4]))
         L.append("")
-    L.append("## Summary of the targets (issue #5)")
+    model = model or {"status": "not run", "why": "left out with --only"}
+    L.append("## Summary of the targets (issues #5 and #13)")
     L.append("")
-    L.append(summary(rk4, numba_dp, dop, chains, flip, wp))
+    L.append(summary(rk4, numba_dp, dop, chains, flip, wp, model))
     L.append("")
     L.append("## Machine and versions")
     L.append("")
@@ -681,6 +751,22 @@ def render(args, info, vers, c_cmd, elapsed, busy, rk4, numba_dp, acc_rows, acc_
         L.append("")
         L.append("</details>")
         L.append("")
+
+    # (e)
+    L.append("## (e) Model extensions: cart-pole against MuJoCo, cost of the extended model")
+    L.append("")
+    if model.get("status") in ("ok", "partial"):
+        L.append(f"From `{model['cmd']}` ({model['seconds']:.0f} s), its own section"
+                 + (" (a part failed)" if model["status"] == "partial" else "") + ":")
+        L.append("")
+        md = model.get("md", "").strip()
+        lines = md.splitlines()
+        if lines and lines[0].startswith("## "):
+            lines = lines[1:]  # its title is this section's
+        L.append("\n".join(lines).strip())  # its ### subsections sit under this ##
+    else:
+        L.append(f"Not run: {model.get('why')}.")
+    L.append("")
     return "\n".join(L) + "\n"
 
 
@@ -688,7 +774,7 @@ def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--quick", action="store_true", help="smaller scans (under 5 min on 2 cores)")
     p.add_argument("--repeats", type=int, default=None, help="repeats per measurement (>= 3)")
-    p.add_argument("--only", default="abcd", help="workloads to run, e.g. 'bd' (default: all)")
+    p.add_argument("--only", default="abcde", help="workloads to run, e.g. 'bd' (default: all)")
     args = p.parse_args(argv)
     args.repeats = max(3, args.repeats or (5 if args.quick else 7))
     start = time.perf_counter()
@@ -700,7 +786,7 @@ def main(argv=None):
     import multipendulum as mp
 
     vers = versions(mp)
-    rk4 = numba_dp = dop = flip = {}
+    rk4 = numba_dp = dop = flip = model = {}
     acc_rows, acc_fit, chains, fits, wp = [], {}, [], {}, []
     if "a" in args.only:
         log("(a) rk4 against C, Numba; accelerations; dop853 against SciPy ...")
@@ -718,20 +804,26 @@ def main(argv=None):
         flip = {"status": "not run", "why": "left out with --only"}
     if "d" in args.only:
         wp = bench_wp(mp, args.quick, args.repeats)
+    if "e" in args.only:
+        log("(e) model extensions (bench_model.py) ...")
+        model = run_model(args.quick, sys.executable)
+    else:
+        model = {"status": "not run", "why": "left out with --only"}
     busy = sorted(set(busy) | set(E.busy_compilers()))
     if hasattr(os, "getloadavg"):
         info["load average at end (1, 5, 15 min)"] = " ".join(f"{x:.2f}" for x in os.getloadavg())
     elapsed = time.perf_counter() - start
-    if args.only != "abcd":
+    if not set(args.only) >= set("abd"):
         log("partial run (--only): RESULTS.md not written; raw results in bench/build/")
     raw = {"rk4": rk4, "numba_dp": numba_dp, "dop853": dop, "chains": chains, "fits": fits,
            "flip": {k: v for k, v in flip.items() if k != "md"}, "wp": wp, "info": info,
+           "model": {k: v for k, v in model.items() if k != "md"},
            "versions": vers, "elapsed": elapsed, "quick": args.quick}
     BUILD.mkdir(exist_ok=True)
     (BUILD / "results.json").write_text(json.dumps(raw, indent=1, default=str))
-    if args.only == "abcd" or set(args.only) >= set("abd"):
+    if set(args.only) >= set("abd"):
         report = render(args, info, vers, c_cmd, elapsed, busy, rk4, numba_dp, acc_rows,
-                        acc_fit, dop, chains, fits, flip, wp)
+                        acc_fit, dop, chains, fits, flip, wp, model)
         RESULTS.write_text(report, encoding="utf-8")
         print(report)
     log(f"done in {elapsed / 60:.1f} min")
