@@ -43,6 +43,8 @@ pub struct Joints {
     pub friction_velocity: f64,
     /// Whether any joint has a loss (so the ideal chain skips them).
     pub(crate) any: bool,
+    /// `1 / friction_velocity`.
+    pub(crate) inv_velocity: f64,
 }
 
 /// The default regularisation rate of the Coulomb friction (rad/s).
@@ -129,7 +131,7 @@ impl Chain {
         // parameters so small or so large in scale that those products leave the normal range make
         // the mass matrix numerically singular in every configuration. Refuse them here, as bad
         // input, rather than at t = 0 as a failed integration.
-        let joints = Joints { damping: vec![0.0; n], friction: vec![0.0; n], friction_velocity: FRICTION_VELOCITY, any: false };
+        let joints = Joints { damping: vec![0.0; n], friction: vec![0.0; n], friction_velocity: FRICTION_VELOCITY, any: false, inv_velocity: 1.0 / FRICTION_VELOCITY };
         let chain = Chain { lengths: lengths.to_vec(), masses: masses.to_vec(), com, inertia, g, h, diag, joints, cart: None };
         chain.check_nonsingular()?;
         // (A chain that passes the structural check has every diagonal entry > 0 in exact
@@ -174,7 +176,8 @@ impl Chain {
             return Err(Error::input(format!("friction_velocity must be > 0 and finite, got {friction_velocity}")));
         }
         let any = damping.iter().chain(friction).any(|&v| v > 0.0);
-        self.joints = Joints { damping: damping.to_vec(), friction: friction.to_vec(), friction_velocity, any };
+        let inv_velocity = 1.0 / friction_velocity;
+        self.joints = Joints { damping: damping.to_vec(), friction: friction.to_vec(), friction_velocity, any, inv_velocity };
         Ok(self)
     }
 

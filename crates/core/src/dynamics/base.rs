@@ -133,6 +133,12 @@ impl Pivot {
         Pivot { x: Axis::Fixed(0.0), y: Axis::Fixed(0.0) }
     }
 
+    /// Whether it is held at the origin: no pivot motion at all.
+    pub fn is_origin(&self) -> bool {
+        let origin = |a: &Axis| matches!(a, Axis::Fixed(x) if *x == 0.0);
+        origin(&self.x) && origin(&self.y)
+    }
+
     /// Whether the pivot stays where it is.
     pub fn is_fixed(&self) -> bool {
         self.x.is_fixed() && self.y.is_fixed()
@@ -220,8 +226,7 @@ impl Drive {
 
     /// The pivot unless it is fixed at the origin (which is no pivot motion at all).
     pub fn moving_pivot(&self) -> Option<&Pivot> {
-        let origin = |a: &Axis| matches!(a, Axis::Fixed(x) if *x == 0.0);
-        self.pivot.as_ref().filter(|p| !(origin(&p.x) && origin(&p.y)))
+        self.pivot.as_ref().filter(|p| !p.is_origin())
     }
 }
 

@@ -50,28 +50,44 @@ pub struct Rates {
     pub losses: f64,
 }
 
+/// `tanh(x)`, with the saturated range taken at once: beyond |x| = 19.07 `tanh` rounds to
+/// +-1 in float64 (1 - tanh(19.07) < 2^-54), so the result is libm's, bit for bit, without its
+/// cost. Friction at rates far above its regularisation rate lives there.
+#[inline(always)]
+pub(crate) fn saturating_tanh(x: f64) -> f64 {
+    if x.abs() > 19.07 {
+        1.0f64.copysign(x)
+    } else {
+        x.tanh()
+    }
+}
+
 /// Scratch values the tangent equations need per link.
 pub const TANGENT_SCRATCH: usize = 8;
 
 impl Chain {
+    /// The loss torque of joint `i` turning at `w`: `-b_i w - f_i tanh(w / v_s)`.
+    #[inline(always)]
+    fn joint_loss(&self, i: usize, w: f64) -> f64 {
+        let j = &self.joints;
+        let mut u = -j.damping[i] * w;
+        if j.friction[i] != 0.0 {
+            u -= j.friction[i] * saturating_tanh(w * j.inv_velocity);
+        }
+        u
+    }
+
     /// Add the joints' loss forces at rates `omega` to `q` and return the power they dissipate,
-    /// `sum_i -u_i w_i >= 0`.
+    /// `sum_i -u_i w_i >= 0`. (From the free end: `Q_i = u_i - u_{i+1}` with `u_{i+1}` in hand.)
     #[inline]
     pub fn add_losses(&self, omega: &[f64], q: &mut [f64]) -> f64 {
-        let j = &self.joints;
-        let (b, f, vs) = (&j.damping, &j.friction, j.friction_velocity);
-        let (mut prev, mut power) = (0.0, 0.0);
-        for i in 0..omega.len() {
-            let w = omega[i] - prev;
-            prev = omega[i];
-            let mut u = -b[i] * w;
-            if f[i] != 0.0 {
-                u -= f[i] * (w / vs).tanh();
-            }
-            q[i] += u;
-            if i > 0 {
-                q[i - 1] -= u;
-            }
+        let n = omega.len();
+        let (mut next, mut power) = (0.0, 0.0);
+        for i in (0..n).rev() {
+            let w = omega[i] - if i > 0 { omega[i - 1] } else { 0.0 };
+            let u = self.joint_loss(i, w);
+            q[i] += u - next;
+            next = u;
             power -= u * w;
         }
         power
@@ -88,7 +104,7 @@ impl Chain {
             d_prev = d_omega[i];
             let mut slope = b[i];
             if f[i] != 0.0 {
-                let th = (w / vs).tanh();
+                let th = saturating_tanh(w / vs);
                 slope += f[i] / vs * (1.0 - th * th);
             }
             let du = -slope * dw;
@@ -125,6 +141,9 @@ impl Chain {
         ws: &mut Workspace,
     ) -> Result<Rates, Singular> {
         let n = theta.len();
+        if n == 2 {
+            return self.accelerations_general_double(theta, omega, cart_v, tau, load, out, ws);
+        }
         let (l, h) = (&self.lengths[..n], &self.h[..n]);
         let (omega, tau, out) = (&omega[..n], &tau[..n], &mut out[..n]);
         self.trig(theta, ws);
@@ -140,7 +159,24 @@ impl Chain {
             su += w2l * s;
         }
         let pull = if self.cart.is_some() { (0..n).map(|a| h[a] * ws.sin[a] * omega[a] * omega[a]).sum() } else { 0.0 };
-        let losses = if self.lossy_joints() { self.add_losses(omega, out) } else { 0.0 };
+        let mut losses = 0.0;
+        if self.lossy_joints() {
+            // Q_a = u_a - u_{a+1}, the joint below's torque computed once and carried.
+            let mut here = self.joint_loss(0, omega[0]);
+            losses -= here * omega[0];
+            for a in 0..n {
+                let below = if a + 1 < n {
+                    let w = omega[a + 1] - omega[a];
+                    let u = self.joint_loss(a + 1, w);
+                    losses -= u * w;
+                    u
+                } else {
+                    0.0
+                };
+                out[a] += here - below;
+                here = below;
+            }
+        }
         let (mut cd, mut sd) = (0.0, 0.0);
         let art = self.eliminate(ws, out, |a, c, s| {
             let e = -l[a] * (s * cd - c * sd);
@@ -154,6 +190,61 @@ impl Chain {
             None => 0.0,
         };
         self.substitute_from(ws, out, x_ddot, |_, _, _, _| {});
+        Ok(Rates { cart: x_ddot, cart_momentum_rate: 0.0, losses })
+    }
+
+    /// [`Chain::accelerations_general`] of two links in closed form (the most common chain; the
+    /// recursion's fixed cost dominates at N = 2): the 2x2 solve, and with a cart its Schur
+    /// complement. Leaves the angles' trig in `ws` as the recursion does.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn accelerations_general_double(
+        &self,
+        theta: &[f64],
+        omega: &[f64],
+        cart_v: f64,
+        tau: &[f64],
+        load: &Load,
+        out: &mut [f64],
+        ws: &mut Workspace,
+    ) -> Result<Rates, Singular> {
+        let (d1, d2, h1, h2) = (self.diag[0], self.diag[1], self.h[0], self.h[1]);
+        let k = self.lengths[0] * h2;
+        let ((s1, c1), (s2, c2)) = (crate::trig::sin_cos(theta[0]), crate::trig::sin_cos(theta[1]));
+        (ws.sin[0], ws.cos[0], ws.sin[1], ws.cos[1]) = (s1, c1, s2, c2);
+        let (s12, c12) = (s1 * c2 - c1 * s2, c1 * c2 + s1 * s2);
+        let [gx, gy] = load.gravity;
+        let (w1, w2) = (omega[0], omega[1]);
+        let mut r = [
+            tau[0] + h1 * (gx * c1 + gy * s1) - k * s12 * w2 * w2,
+            tau[1] + h2 * (gx * c2 + gy * s2) + k * s12 * w1 * w1,
+        ];
+        let losses = if self.lossy_joints() { self.add_losses(&omega[..2], &mut r) } else { 0.0 };
+        let kc = k * c12;
+        let det = d1 * d2 - kc * kc;
+        if !(det > PIVOT_TOL * d1 * d2) {
+            return Err(Singular(0));
+        }
+        let inv = 1.0 / det;
+        let solve = |a: f64, b: f64| ((d2 * a - kc * b) * inv, (d1 * b - kc * a) * inv);
+        let (mut a1, mut a2) = solve(r[0], r[1]);
+        let mut x_ddot = 0.0;
+        if let Some(cart) = self.cart {
+            // theta_ddot = A^-1 (r - b x_ddot), b = h cos(theta); the cart's row closes it.
+            let (b1, b2) = (h1 * c1, h2 * c2);
+            let (z1, z2) = solve(b1, b2);
+            let total = cart.mass + self.total_mass();
+            let schur = total - (b1 * z1 + b2 * z2);
+            if !(schur > PIVOT_TOL * total) {
+                return Err(Singular(0));
+            }
+            let rx = load.cart_force - cart.damping * cart_v + h1 * s1 * w1 * w1 + h2 * s2 * w2 * w2;
+            x_ddot = (rx - (b1 * a1 + b2 * a2)) / schur;
+            a1 -= z1 * x_ddot;
+            a2 -= z2 * x_ddot;
+        }
+        out[0] = a1;
+        out[1] = a2;
         Ok(Rates { cart: x_ddot, cart_momentum_rate: 0.0, losses })
     }
 

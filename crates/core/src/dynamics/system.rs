@@ -117,6 +117,17 @@ pub struct ChainSystem<C, T> {
     /// `(x, theta, v, omega)` for a feedback cart force; scratch for the tangents.
     state: Vec<f64>,
     scratch: Vec<f64>,
+    /// The layout's indices, looked up once.
+    slots: Slots,
+}
+
+#[derive(Debug, Clone, Copy, Default)]
+struct Slots {
+    cart: Option<usize>,
+    torque: Option<usize>,
+    pivot: Option<usize>,
+    force: Option<usize>,
+    dissipated: Option<usize>,
 }
 
 impl<C: Borrow<Chain>, T: TorqueSource> ChainSystem<C, T> {
@@ -133,6 +144,7 @@ impl<C: Borrow<Chain>, T: TorqueSource> ChainSystem<C, T> {
             general: false,
             state: Vec::new(),
             scratch: Vec::new(),
+            slots: Slots::default(),
         };
         sys.arrange();
         sys
@@ -174,6 +186,8 @@ impl<C: Borrow<Chain>, T: TorqueSource> ChainSystem<C, T> {
             losses: chain.dissipative(),
         };
         self.general = !chain.is_ideal() || pivot;
+        let l = self.layout;
+        self.slots = Slots { cart: l.cart(), torque: l.torque_work(), pivot: l.pivot_work(), force: l.force_work(), dissipated: l.dissipated() };
         self.state = vec![0.0; 2 * n + 2];
         self.scratch = vec![0.0; TANGENT_SCRATCH * n + 4 * n];
     }
@@ -231,18 +245,18 @@ pub(crate) const NON_FINITE: &str = "the state became non-finite (the motion ble
 impl<C: Borrow<Chain>, T: TorqueSource> ChainSystem<C, T> {
     /// The right-hand side of the general model (losses, a cart, a moving pivot).
     fn rhs_general(&mut self, t: f64, y: &[f64], dy: &mut [f64]) -> Result<()> {
-        let Self { chain, torque, ws, tau, drive, layout, state, form, .. } = self;
+        let Self { chain, torque, ws, tau, drive, layout, state, form, slots, .. } = self;
         let chain: &Chain = (*chain).borrow();
-        let (n, lay) = (chain.n(), *layout);
+        let (n, lay, slots) = (chain.n(), *layout, *slots);
         let active = lay.torque;
         let theta = &y[..n];
-        let (x, second_x) = match lay.cart() {
+        let (x, second_x) = match slots.cart {
             Some(i) => (y[i], y[i + 1]),
             None => (0.0, 0.0),
         };
-        let motion = match drive.moving_pivot() {
-            Some(p) => p.eval(t)?,
-            None => Motion::default(),
+        let motion = match (lay.pivot, drive.pivot.as_ref()) {
+            (true, Some(p)) => p.eval(t)?,
+            _ => Motion::default(),
         };
         let mut load = if lay.pivot { Load::pivot(chain, motion.acc) } else { Load::still(chain) };
         let (d_theta, rest) = dy.split_at_mut(n);
@@ -262,7 +276,7 @@ impl<C: Borrow<Chain>, T: TorqueSource> ChainSystem<C, T> {
                 }
                 d_theta.copy_from_slice(omega);
                 let r = chain.accelerations_general(theta, omega, v, tau, &load, d_second, ws).map_err(|s| singular(t, y, s))?;
-                if let Some(i) = lay.cart() {
+                if let Some(i) = slots.cart {
                     dy[i] = v;
                     dy[i + 1] = r.cart;
                 }
@@ -285,25 +299,25 @@ impl<C: Borrow<Chain>, T: TorqueSource> ChainSystem<C, T> {
                         Ok(force)
                     })
                     .map_err(|s| singular(t, y, s))??;
-                if let Some(i) = lay.cart() {
+                if let Some(i) = slots.cart {
                     dy[i] = r.cart;
                     dy[i + 1] = r.cart_momentum_rate;
                 }
                 (r.cart, force, r.losses)
             }
         };
-        if let Some(i) = lay.torque_work() {
+        if let Some(i) = slots.torque {
             dy[i] = tau.iter().zip(&dy[..n]).map(|(a, b)| a * b).sum();
         }
-        if let Some(i) = lay.pivot_work() {
+        if let Some(i) = slots.pivot {
             // The trig of the angles is still in the workspace.
             let r = chain.momentum_relative_cached(&dy[..n], ws);
             dy[i] = -(motion.acc[0] * r[0] + motion.acc[1] * r[1]);
         }
-        if let Some(i) = lay.force_work() {
+        if let Some(i) = slots.force {
             dy[i] = force * v;
         }
-        if let Some(i) = lay.dissipated() {
+        if let Some(i) = slots.dissipated {
             dy[i] = losses + chain.cart().map_or(0.0, |c| c.damping * v * v);
         }
         Ok(())
