@@ -151,9 +151,23 @@ def test_serves_a_checked_scenario_as_json(serve, fake_web):
     assert data["name"] == "Triple pendulum" and data["method"] == "gauss6" and data["dt"] == 0.002
     np.testing.assert_allclose(data["theta"], np.radians([90, 120, 150]), rtol=1e-15)
     assert data["lengths"] == [1.0, 1.0, 1.0] and data["kind"] == "points" and data["notes"] == []
+    assert data["torque"] is data["pivot"] is data["cart"] is data["damping"] is None
+    # A torque table from its CSV file, with its samples; the notes no longer say it is ignored.
     driven = json.loads(request(serve(root=fake_web, scenario=load_scenario(ROOT / "examples" / "driven_rod.toml")),
                                 "/scenario.json")[2])
-    assert "torque" in driven["notes"][0]
+    assert driven["notes"] == []
+    torque = driven["torque"]
+    assert (torque["kind"], torque["convention"], torque["interpolation"]) == ("table", "joint", "cubic")
+    csv = np.loadtxt(ROOT / "examples" / "driven_rod.csv", delimiter=",", comments="#", skiprows=3)
+    np.testing.assert_array_equal(torque["t"], csv[:, 0])
+    np.testing.assert_array_equal(np.asarray(torque["values"])[:, 0], csv[:, 1])
+    kapitza = json.loads(request(serve(root=fake_web, scenario=load_scenario(ROOT / "examples" / "kapitza.toml")),
+                                 "/scenario.json")[2])
+    assert kapitza["pivot"] == {"y": {"kind": "sinusoid", "amplitude": 0.02, "frequency": 300.0,
+                                      "phase": math.pi / 2, "offset": 0.0}}
+    damped = json.loads(request(serve(root=fake_web, scenario=load_scenario(ROOT / "examples" / "damped_double.toml")),
+                                "/scenario.json")[2])
+    assert damped["damping"] == [0.08, 0.05] and damped["friction"] is None
 
 
 @pytest.mark.parametrize("value, message", [
@@ -403,6 +417,14 @@ def test_energy_readout_stays_at_the_integrators_accuracy_for_10_s(open_page, me
     ("masses", "abc", 'Masses: "abc" is not a number'),
     ("g", "NaN", "g must be finite, got NaN"),
     ("tol", "0", "rtol must be >= 1e-15 and finite, got 0"),
+    ("damping", "-0.1", "damping[0] must be >= 0 and finite, got -0.1"),
+    ("damping", "0.1, NaN", "damping[1] must be >= 0 and finite, got NaN"),
+    ("friction", "-1", "friction[0] must be >= 0 and finite, got -1"),
+    ("cart_mass", "0", "cart mass must be > 0 and finite, got 0"),
+    ("pivot_y", "{ kind = \"table\", t = [0], values = [0] }", "pivot y: a cubic table needs at least 2 samples, got 1"),
+    ("pivot_x", "{ kind = \"sine\" }", "pivot x: kind must be"),
+    ("torque", "{ kind = \"constant\", convention = \"joint\", value = [1, 2, 3] }",
+     "torque: value must have 2 entries (one per link), got 3"),
 ])
 def test_bad_input_is_refused_with_a_visible_message(open_page, field, value, message):
     p = open_page()
@@ -415,7 +437,7 @@ def test_bad_input_is_refused_with_a_visible_message(open_page, field, value, me
     p.wait(f"multipendulum.state.sim.t > {t0} + 0.2")
     assert all(math.isfinite(v) for v in p.js("multipendulum.state.sim.positions()"))
     assert "NaN" not in p.js("document.querySelector('.readouts').textContent")
-    p.set(field, {"n": "2", "theta": "130, 160", "tol": "1e-10"}.get(field, "1"))
+    p.set(field, {"n": "2", "theta": "130, 160", "tol": "1e-10", "torque": ""}.get(field, "1"))
     assert p.message() == "" and p.page.locator(f"[name={field}]").get_attribute("aria-invalid") is None
     assert p.errors == []
 
@@ -477,9 +499,19 @@ def test_a_scenario_file_loads(open_page):
     p.wait("multipendulum.state.sim.n === 50")
     theta = p.js("multipendulum.state.setup.theta")
     np.testing.assert_allclose(theta, np.radians(np.linspace(90, 45, 50)), atol=1e-12)
+    # A torque table in a CSV file: refused (nothing applied) unless the file is chosen with it.
     p.page.set_input_files("#load", str(ROOT / "examples" / "driven_rod.toml"))
     p.wait("document.getElementById('message').textContent.includes('driven_rod')")
-    assert "torque" in p.message()
+    assert "torque.file': driven_rod.csv was not chosen" in p.message()
+    assert p.js("multipendulum.state.sim.n") == 50
+    p.page.set_input_files("#load", [str(ROOT / "examples" / "driven_rod.toml"), str(ROOT / "examples" / "driven_rod.csv")])
+    p.wait("multipendulum.state.sim.n === 1")
+    assert "Loaded driven_rod.toml. Press Play." == p.message()
+    torque = p.js("multipendulum.state.setup.torque")
+    # The same table as the Python package reads from the CSV file.
+    ref = load_scenario(ROOT / "examples" / "driven_rod.toml").torque
+    assert (torque["kind"], torque["convention"], torque["interpolation"]) == ("table", "joint", "cubic")
+    assert torque["t"] == list(ref.params["t"]) and torque["values"] == [list(r) for r in ref.params["values"]]
     p.page.set_input_files("#load", files=[{"name": "bad.toml", "mimeType": "text/plain",
                                             "buffer": b"[chain]\nlengths = [1, -1]\nmasses = [1, 1]\n"
                                                       b"[initial]\nunit = 'degrees'\ntheta = [0, 0]\n"}])
@@ -554,3 +586,251 @@ def test_a_hundred_links_run(open_page):
     after = p.js("multipendulum.state.sim.positions()")
     assert len(after) == 200 and all(math.isfinite(v) for v in after) and after != before
     assert p.errors == []
+
+
+# ----------------------------------------------------------------------------------------------
+# Losses, the moving pivot, the cart and torques in the page
+
+
+def _served(browser, scenario):
+    """A page opened on `multipendulum serve SCENARIO` (the Python package checks the file)."""
+    server = make_server(port=0, quiet=True, scenario=scenario)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    page = Page(browser, server.url)
+    page.wait("document.getElementById('message').textContent.startsWith('Loaded')")
+    return server, page
+
+
+@pytest.fixture
+def served(browser):
+    opened = []
+
+    def start(scenario):
+        server, page = _served(browser, scenario)
+        opened.append((server, page))
+        return page
+
+    yield start
+    for server, page in opened:
+        page.close()
+        server.shutdown()
+        server.server_close()
+
+
+def _run_terms(p, until, every=0.25):
+    """Play until sim.t > `until`, sampling the page's terms (the core's) about every `every` s."""
+    p.page.click("#play")
+    samples = []
+    while True:
+        terms = p.js("({t: multipendulum.state.sim.t, ...multipendulum.state.terms})")
+        if not samples or terms["t"] >= samples[-1]["t"] + every:
+            samples.append(terms)
+        if terms["t"] > until:
+            break
+        p.page.wait_for_timeout(40)
+    p.page.click("#play")
+    return samples
+
+
+def test_a_damped_pendulum_loses_energy_to_its_dissipated_term(served):
+    p = served(load_scenario(ROOT / "examples" / "damped_double.toml"))
+    assert p.page.input_value("[name=damping]") == "0.08, 0.05"
+    assert "balance residual" in p.page.locator("#error-label").inner_text()
+    p.page.select_option("[name=speed]", "4")
+    samples = _run_terms(p, 6.0)
+    assert len(samples) > 8
+    energy = [s["energy"] for s in samples]
+    dissipated = [s["dissipated"] for s in samples]
+    # Damping alone: dE/dt = -2R <= 0, and what is lost is what was dissipated.
+    assert all(b <= a + 1e-9 for a, b in zip(energy, energy[1:])), energy
+    assert all(b >= a - 1e-12 for a, b in zip(dissipated, dissipated[1:])), dissipated
+    assert energy[-1] < energy[0] - 1.0 and dissipated[-1] > 1.0, (energy, dissipated)
+    e0 = p.js("multipendulum.state.sim.initialEnergy")
+    for s in samples:
+        assert abs(s["energy"] - e0 + s["dissipated"]) <= 1e-7 * e0
+        assert s["residual"] < 1e-7 and s["workIn"] == 0
+    # The readouts show the same terms.
+    shown = float(p.js("document.getElementById('dissipated').textContent").split()[0])
+    assert shown == pytest.approx(p.js("multipendulum.state.terms.dissipated"), rel=1e-5)
+    assert p.errors == []
+
+
+CART_SCENARIO = b"""
+name = "Pushed cart"
+[chain]
+lengths = [0.6]
+masses = [0.5]
+[cart]
+mass = 1.0
+damping = 0.2
+x0 = -0.2
+force = { kind = "sinusoid", amplitude = 3.0, frequency = 4.0 }
+[initial]
+unit = "degrees"
+theta = [20.0]
+[simulation]
+method = "dop853"
+"""
+
+
+def _cart_pixels(page):
+    # The block's colour, as the page draws it (CART_COLOR in viewer.js).
+    pixels = _canvas(page)
+    mask = np.all(np.abs(pixels - np.array([0xA0, 0x72, 0x2A])) <= 6, axis=-1)
+    ys, xs = np.nonzero(mask)
+    return len(xs), (xs.mean() if len(xs) else None)
+
+
+def test_a_cart_scenario_draws_the_cart_and_moves_it(open_page):
+    p = open_page()
+    assert _cart_pixels(p)[0] == 0  # no cart on the default pendulum
+    p.page.set_input_files("#load", files=[{"name": "cart.toml", "mimeType": "text/plain", "buffer": CART_SCENARIO}])
+    p.wait("multipendulum.state.setup.cart !== null")
+    assert p.message() == "Loaded cart.toml. Press Play."
+    assert p.page.input_value("[name=cart_mass]") == "1"
+    assert p.page.input_value("[name=cart_force]") == '{ kind = "sinusoid", amplitude = 3, frequency = 4, phase = 0, offset = 0 }'
+    count, x_before = _cart_pixels(p)
+    assert count > 200, count
+    assert p.js("multipendulum.state.terms.cart.x") == -0.2
+    assert p.page.locator("#cart-x").inner_text() == "-0.200 m"
+    samples = _run_terms(p, 0.5, every=0.05)
+    xs = [s["cart"]["x"] for s in samples]
+    assert max(xs) - min(xs) > 0.05, xs
+    assert p.page.locator("#cart-x").inner_text() != "-0.200 m"
+    count, x_after = _cart_pixels(p)
+    assert count > 200 and abs(x_after - x_before) > 5, (x_before, x_after)
+    # The pivot rides on the cart: the base is the cart's position at y = 0.
+    last = samples[-1]
+    assert last["base"] == [last["cart"]["x"], 0]
+    assert last["work"]["cart"] != 0 and last["dissipated"] > 0 and last["residual"] < 1e-7
+    assert p.errors == []
+
+
+def _kapitza(served):
+    """The Kapitza scenario served and run for 3 s, with its checks; returns the page."""
+    p = served(load_scenario(ROOT / "examples" / "kapitza.toml"))
+    assert p.page.input_value("[name=pivot_y]").startswith('{ kind = "sinusoid", amplitude = 0.02, frequency = 300')
+    assert p.js("multipendulum.state.terms.base") == [0, 0.02]  # y = 0.02 sin(pi/2) at t = 0
+    samples = _run_terms(p, 3.0, every=0.01)
+    ys = [s["base"][1] for s in samples]
+    assert max(ys) - min(ys) > 0.02 and max(abs(y) for y in ys) <= 0.02 + 1e-15, ys
+    assert all(s["base"][0] == 0 for s in samples)
+    # Above the threshold of stability the shaken rod stays near upright, 8 degrees off at start.
+    theta = p.js("multipendulum.state.sim.theta()")[0]
+    assert abs(theta - math.pi) < 0.4, theta
+    assert max(abs(s["work"]["pivot"]) for s in samples) > 0 and samples[-1]["residual"] < 1e-7
+    assert "moving pivot" in p.page.locator("#status").inner_text()
+    assert p.page.locator("#pivot").is_visible() and p.errors == []
+    return p
+
+
+def test_a_kapitza_pivot_moves_and_holds_the_pendulum_up(served):
+    _kapitza(served)
+
+
+def test_the_url_shares_the_pivot_and_the_cart(served, open_page):
+    p = _kapitza(served)
+    url = p.page.url
+    q = open_page(url[url.index("?"):])
+    assert q.js("multipendulum.state.setup.pivot") == p.js("multipendulum.state.setup.pivot")
+    q.page.fill("[name=pivot_y]", "")
+    q.set("cart_mass", "2")
+    q.set("cart_force", "1.5")
+    url = q.page.url
+    r = open_page(url[url.index("?"):])
+    assert r.js("multipendulum.state.setup.cart") == {"mass": 2, "damping": 0, "x0": 0, "v0": 0, "force": 1.5}
+    assert r.page.locator("#cart-x").is_visible() and not r.page.locator("#pivot").is_visible()
+    assert r.js("multipendulum.state.setup.pivot") is None and q.errors == r.errors == []
+
+
+def test_a_torque_scenario_is_driven_and_does_work(served, open_page):
+    # From the server: a joint torque table read from its CSV file.
+    p = served(load_scenario(ROOT / "examples" / "driven_rod.toml"))
+    assert p.message() == "Loaded scenario.json. Press Play."  # no note: the torque is applied
+    samples = _run_terms(p, 2.0)
+    assert samples[-1]["work"]["torque"] > 0.1 and samples[-1]["workIn"] == samples[-1]["work"]["torque"]
+    assert max(s["residual"] for s in samples) < 1e-7
+    assert float(p.page.locator("#work").inner_text().split()[0]) > 0.1
+    # The pumped rod swings up beyond what its start (5 degrees) could give.
+    assert samples[-1]["energy"] > samples[0]["energy"] + 0.1
+    # From the page's file input: a generalized sinusoidal torque on a 4-link chain.
+    q = open_page()
+    q.page.set_input_files("#load", str(ROOT / "examples" / "seed000_driven_chain.toml"))
+    q.wait("multipendulum.state.sim.n === 4")
+    assert q.message() == "Loaded seed000_driven_chain.toml. Press Play."
+    assert "not applied" not in q.message() and "ignored" not in q.message()
+    assert q.js("multipendulum.state.setup.torque.amplitude") == [4, 0, 0, 0]
+    samples = _run_terms(q, 1.0)
+    assert abs(samples[-1]["work"]["torque"]) > 1e-3 and samples[-1]["residual"] < 1e-7
+    assert p.errors == [] and q.errors == []
+
+
+def test_a_bad_damping_in_a_scenario_is_refused_visibly(open_page):
+    p = open_page()
+    bad = CART_SCENARIO.replace(b"lengths = [0.6]", b"lengths = [0.6]\ndamping = -0.5")
+    p.page.set_input_files("#load", files=[{"name": "bad_damping.toml", "mimeType": "text/plain", "buffer": bad}])
+    p.wait("document.getElementById('message').textContent.includes('damping')")
+    assert p.message() == "Not applied: damping[0] must be >= 0 and finite, got -0.5"
+    assert p.page.locator("[name=damping]").get_attribute("aria-invalid") == "true"
+    assert p.js("multipendulum.state.setup.cart") is None  # nothing of it applied
+    bad = CART_SCENARIO.replace(b"mass = 1.0", b"mass = -1.0")
+    p.page.set_input_files("#load", files=[{"name": "bad_cart.toml", "mimeType": "text/plain", "buffer": bad}])
+    p.wait("document.getElementById('message').textContent.includes('cart mass')")
+    assert p.message() == "Not applied: cart mass must be > 0 and finite, got -1"
+    assert p.page.locator("[name=cart_mass]").get_attribute("aria-invalid") == "true"
+    assert p.errors == []
+
+
+@pytest.mark.parametrize("case", ["losses_pivot_joint_table", "cart_force_torque"])
+def test_one_wasm_step_of_the_extended_model_equals_the_python_package(open_page, case):
+    p = open_page()
+    n, dt = 3, 0.01
+    rng = np.random.default_rng(13)
+    lengths, masses = rng.uniform(0.3, 1.5, n), rng.uniform(0.2, 2.0, n)
+    theta0, omega0 = rng.uniform(-3, 3, n), rng.uniform(-2, 2, n)
+    damping, friction = [0.1, 0.0, 0.3], [0.05, 0.2, 0.0]
+    params = dict(kind="rods", lengths=lengths.tolist(), masses=masses.tolist(), g=9.81, method="rk4", dt=dt,
+                  theta=theta0.tolist(), omega=omega0.tolist())
+    t_tab = [0.0, 0.004, 0.007, 0.02]
+    v_tab = [[1.0, -0.5, 0.2], [0.3, 0.1, 0.0], [-0.7, 0.4, 0.9], [0.0, 0.0, 0.5]]
+    if case == "losses_pivot_joint_table":
+        params.update(damping=damping, friction=friction, friction_velocity=0.01,
+                      pivot={"x": {"kind": "table", "t": [0, 0.005, 0.01, 0.02], "values": [0, 0.01, -0.02, 0.0]},
+                             "y": {"kind": "sinusoid", "amplitude": 0.03, "frequency": 40.0, "phase": 0.3, "offset": 0.1}},
+                      torque={"kind": "table", "convention": "joint", "t": t_tab, "values": v_tab, "interpolation": "cubic"})
+        chain = mp.Chain.rods(lengths, masses, damping=damping, friction=friction, friction_velocity=0.01)
+        kwargs = dict(pivot=mp.Pivot(x=mp.Table([0, 0.005, 0.01, 0.02], [0, 0.01, -0.02, 0.0], kind="cubic"),
+                                     y=mp.Sinusoid(0.03, 40.0, phase=0.3, offset=0.1)),
+                      joint_torque=mp.Table(t_tab, v_tab, kind="cubic"))
+    else:
+        params.update(damping=damping, cart={"mass": 1.7, "damping": 0.4, "x0": 0.3, "v0": -0.2,
+                                             "force": {"kind": "table", "t": [0, 0.01], "values": [2.0, -1.0]}},
+                      torque={"kind": "sinusoid", "convention": "generalized", "amplitude": [1.0, 0.0, 0.5],
+                              "frequency": [3.0, 1.0, 7.0], "phase": [0.0, 0.0, 1.0], "offset": [0.1, 0.0, 0.0]})
+        chain = mp.Chain.rods(lengths, masses, damping=damping, cart=mp.Cart(1.7, 0.4))
+        kwargs = dict(cart_x0=0.3, cart_v0=-0.2, cart_force=mp.Table([0, 0.01], [2.0, -1.0]),
+                      torque=mp.Sinusoid([1.0, 0.0, 0.5], [3.0, 1.0, 7.0], phase=[0.0, 0.0, 1.0], offset=[0.1, 0.0, 0.0]))
+    got = p.js("""(p) => {
+        const sim = multipendulum.engine.simulation(p);
+        sim.advanceTo(p.dt, 1);
+        const out = {t: sim.t, theta: sim.theta(), omega: sim.omega(), terms: sim.terms(), base: sim.base()};
+        sim.free();
+        return out;
+    }""", params)
+    sol = mp.simulate(chain, theta0, omega0, dt, method="rk4", dt=dt, t_eval=[dt], **kwargs)
+    assert got["t"] == dt
+    np.testing.assert_allclose(got["theta"], sol.theta[-1], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(got["omega"], sol.omega[-1], rtol=0, atol=1e-12)
+    terms = got["terms"]
+    scale = max(1.0, abs(terms["energy"]))
+    assert abs(terms["energy"] - sol.energy[-1]) <= 1e-12 * scale
+    for name in ("torque", "pivot", "cart"):
+        assert abs(terms["work"][name] - getattr(sol.work, name)[-1]) <= 1e-12 * scale, name
+    assert abs(terms["dissipated"] - sol.work.dissipated[-1]) <= 1e-12 * scale
+    np.testing.assert_allclose(terms["base"], sol.pivot[-1], rtol=0, atol=1e-14)
+    assert got["base"] == terms["base"]
+    if case == "cart_force_torque":
+        assert terms["cart"]["x"] == pytest.approx(sol.cart_x[-1], abs=1e-12)
+        assert terms["cart"]["v"] == pytest.approx(sol.cart_v[-1], abs=1e-12)
+    else:
+        assert terms["cart"] is None

@@ -24,6 +24,8 @@ from pathlib import Path
 from typing import Any, Dict, Optional, Union
 from urllib.parse import unquote, urlsplit
 
+import numpy as np
+
 from .errors import InputError
 
 __all__ = ["web_dir", "scenario_json", "make_server", "parse_host", "parse_port", "WASM_NAME"]
@@ -51,17 +53,33 @@ def web_dir() -> Path:
     return Path(__file__).resolve().parent / "web"
 
 
+def _plain(value: Any) -> Any:
+    """A scenario's numbers (NumPy arrays and scalars included) as JSON's lists and floats."""
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return [_plain(v) for v in value]
+    if isinstance(value, (bool, str)) or value is None:
+        return value
+    return float(value)
+
+
+def _signal(spec) -> Optional[Dict[str, Any]]:
+    """A :class:`~multipendulum.scenario.SignalSpec` as the page takes it: ``{"kind": ..., **params}``."""
+    return None if spec is None else {"kind": spec.kind, **_plain(spec.params)}
+
+
 def scenario_json(scenario) -> Dict[str, Any]:
-    """A checked :class:`~multipendulum.scenario.Scenario` as the page's setup: chain, start
-    (radians), integrator. The viewer shows the undriven chain; a torque is noted."""
+    """A checked :class:`~multipendulum.scenario.Scenario` as the page's setup: chain (with its
+    losses), start (radians), integrator, and the drive: the pivot's motion or the cart, and the
+    torque (tables with their samples, whether they came from a CSV file or not)."""
     chain = scenario.chain
-    notes = []
-    if scenario.torque is not None:
-        notes.append("its [torque] is not applied here: the viewer shows the undriven chain")
 
     def floats(values):
         return None if values is None else [float(v) for v in values]
 
+    cart = scenario.cart
+    torque = scenario.torque
     return {
         "name": scenario.name,
         "kind": chain["kind"],
@@ -70,13 +88,21 @@ def scenario_json(scenario) -> Dict[str, Any]:
         "com": floats(chain.get("com")),
         "inertia": floats(chain.get("inertia")),
         "g": float(chain["g"]),
+        "damping": floats(chain.get("damping")),
+        "friction": floats(chain.get("friction")),
+        "friction_velocity": None if chain.get("friction_velocity") is None else float(chain["friction_velocity"]),
         "theta": floats(scenario.theta0),
         "omega": floats(scenario.omega0),
         "method": scenario.method,
         "dt": scenario.dt,
         "rtol": scenario.rtol,
         "atol": scenario.atol,
-        "notes": notes,
+        "pivot": None if scenario.pivot is None else {axis: _signal(spec) for axis, spec in scenario.pivot.items()},
+        "cart": None if cart is None else {"mass": float(cart.mass), "damping": float(cart.damping), "x0": float(cart.x0),
+                                           "v0": float(cart.v0), "force": _signal(cart.force)},
+        "torque": None if torque is None else {"kind": torque.kind, "convention": torque.convention,
+                                               **_plain(torque.params)},
+        "notes": [],
     }
 
 

@@ -4,6 +4,10 @@
 //!
 //! - buffers: `mp_alloc(bytes)` returns 8-byte aligned memory, `mp_free(ptr, bytes)` releases
 //!   it; arrays are `f64`, strings UTF-8.
+//! - what goes beyond the ideal chain on a fixed pivot: `mp_setup_new()` returns a [`Setup`]
+//!   (joint losses, a cart, a pivot motion, a torque, a cart force), filled by the
+//!   `mp_setup_*` functions and read by `mp_sim_new`; `mp_setup_free` releases it. It only holds
+//!   the numbers: the core checks them when the simulation is built.
 //! - a simulation: `mp_sim_new(..)` returns a handle (null on bad input), the other `mp_sim_*`
 //!   functions take it, `mp_sim_free` releases it. It wraps a core [`Stepper`].
 //! - errors: a call that fails returns null or a negative status, and `mp_error_ptr` /
@@ -13,7 +17,10 @@
 use std::alloc::{alloc_zeroed, dealloc, Layout};
 use std::cell::RefCell;
 
-use multipendulum_core::{Builtin, Chain, Error, Method, Settings, Stepper};
+use multipendulum_core::model::FRICTION_VELOCITY;
+use multipendulum_core::{
+    Axis, Builtin, Cart, Chain, Drive, Error, Force, Interp, Joint, Method, Pivot, Settings, Stepper, TorqueSource,
+};
 
 thread_local! {
     static LAST_ERROR: RefCell<String> = const { RefCell::new(String::new()) };
@@ -89,10 +96,11 @@ fn facts_json() -> String {
         .collect();
     let numbers = |v: Vec<facts::Fact>| v.iter().map(|(k, x, _)| format!("\"{k}\":{x:e}")).collect::<Vec<_>>().join(",");
     format!(
-        "{{\"methods\":{{{}}},\"method_order\":[{}],\"defaults\":{{{},\"method\":\"{}\"}},\"limits\":{{{}}}}}",
+        "{{\"methods\":{{{}}},\"method_order\":[{}],\"defaults\":{{{},\"friction_velocity\":{:e},\"method\":\"{}\"}},\"limits\":{{{}}}}}",
         methods.join(","),
         list(facts::methods().iter().map(|m| m.name).collect()),
         numbers(facts::defaults()),
+        FRICTION_VELOCITY,
         facts::default_method(),
         numbers(facts::limits())
     )
@@ -109,9 +117,271 @@ pub extern "C" fn mp_facts_len() -> usize {
     FACTS.with(|f| f.len())
 }
 
-/// A simulation: the core's stepper for an undriven chain.
+// ---- Setup: losses, the base, the drive -----------------------------------------------------
+
+/// The forms of a signal (a torque, a pivot axis, the cart force) passed to the `mp_setup_*`
+/// functions, with the layout of its `data`:
+/// - `SIGNAL_CONSTANT`: the values (one per link; one for an axis or the force);
+/// - `SIGNAL_SINUSOID`: amplitudes, frequencies (rad/s), phases (rad), offsets, one block each
+///   of `len / 4` values (`offset + amplitude sin(frequency t + phase)`);
+/// - `SIGNAL_LINEAR`, `SIGNAL_CUBIC`: a table, `rows` sample times then their values row by
+///   row (`rows` x N; one column for an axis or the force), interpolated linearly or by the
+///   natural cubic spline. A pivot axis takes only the cubic table (it needs two derivatives).
+pub const SIGNAL_CONSTANT: i32 = 0;
+pub const SIGNAL_SINUSOID: i32 = 1;
+pub const SIGNAL_LINEAR: i32 = 2;
+pub const SIGNAL_CUBIC: i32 = 3;
+
+#[derive(Debug, Clone)]
+struct Signal {
+    kind: i32,
+    rows: usize,
+    data: Vec<f64>,
+}
+
+impl Signal {
+    unsafe fn read(kind: i32, rows: usize, data: *const f64, len: usize, what: &str) -> Result<Self, Error> {
+        if !(SIGNAL_CONSTANT..=SIGNAL_CUBIC).contains(&kind) {
+            return Err(Error::input(format!("{what}: unknown signal kind {kind}")));
+        }
+        let data = slice(data, len).to_vec();
+        if kind == SIGNAL_SINUSOID && data.len() % 4 != 0 {
+            return Err(Error::input(format!("{what}: a sinusoid takes amplitude, frequency, phase and offset, got {} numbers", data.len())));
+        }
+        if kind >= SIGNAL_LINEAR && rows > data.len() {
+            return Err(Error::input(format!("{what}: a table of {rows} times needs at least {rows} numbers, got {}", data.len())));
+        }
+        Ok(Signal { kind, rows, data })
+    }
+
+    /// The core's built-in signal of `n` columns (a torque, or the cart force with `n = 1`).
+    fn builtin(&self, n: usize) -> Result<Builtin, Error> {
+        let d = &self.data;
+        match self.kind {
+            SIGNAL_CONSTANT => Builtin::constant(n, d.clone()),
+            SIGNAL_SINUSOID => {
+                let m = d.len() / 4;
+                let part = |k: usize| d[k * m..(k + 1) * m].to_vec();
+                Builtin::sinusoid(n, part(0), part(1), part(2), part(3))
+            }
+            kind => {
+                let interp = if kind == SIGNAL_CUBIC { Interp::Cubic } else { Interp::Linear };
+                Builtin::table(n, d[..self.rows].to_vec(), d[self.rows..].to_vec(), interp)
+            }
+        }
+    }
+
+    /// The core's pivot axis (`name`: x or y).
+    fn axis(&self, name: &str) -> Result<Axis, Error> {
+        let d = &self.data;
+        match self.kind {
+            SIGNAL_CONSTANT if d.len() == 1 => Axis::fixed(name, d[0]),
+            SIGNAL_SINUSOID if d.len() == 4 => Axis::sinusoid(name, d[0], d[1], d[2], d[3]),
+            SIGNAL_CONSTANT | SIGNAL_SINUSOID => {
+                Err(Error::input(format!("pivot {name}: expected one value per parameter, got {} numbers", d.len())))
+            }
+            SIGNAL_LINEAR => Err(Error::input(format!(
+                "pivot {name}: a table must be cubic (the pivot's motion needs two derivatives)"
+            ))),
+            _ => Axis::spline(name, d[..self.rows].to_vec(), d[self.rows..].to_vec()),
+        }
+    }
+}
+
+/// Everything a simulation has beyond the ideal chain on a fixed pivot; unset parts are
+/// absent (no losses, no cart, a fixed pivot at the origin, no torque, no cart force).
+#[derive(Debug, Clone)]
+pub struct Setup {
+    damping: Option<Vec<f64>>,
+    friction: Option<Vec<f64>>,
+    friction_velocity: f64,
+    cart: Option<(f64, f64)>,
+    cart0: [f64; 2],
+    pivot: [Option<Signal>; 2],
+    torque: Option<(bool, Signal)>,
+    force: Option<Signal>,
+}
+
+impl Default for Setup {
+    fn default() -> Self {
+        Setup {
+            damping: None,
+            friction: None,
+            friction_velocity: FRICTION_VELOCITY,
+            cart: None,
+            cart0: [0.0, 0.0],
+            pivot: [None, None],
+            torque: None,
+            force: None,
+        }
+    }
+}
+
+/// The torque of a simulation: generalized (conjugate to the absolute angles) or joint-motor
+/// torques, both the core's built-in forms.
+enum Torque {
+    Generalized(Builtin),
+    Joint(Joint<Builtin>),
+}
+
+impl TorqueSource for Torque {
+    fn active(&self) -> bool {
+        match self {
+            Torque::Generalized(b) => b.active(),
+            Torque::Joint(b) => b.active(),
+        }
+    }
+    fn eval(&mut self, t: f64, theta: &[f64], omega: &[f64], out: &mut [f64]) -> multipendulum_core::Result<()> {
+        match self {
+            Torque::Generalized(b) => b.eval(t, theta, omega, out),
+            Torque::Joint(b) => b.eval(t, theta, omega, out),
+        }
+    }
+}
+
+/// A message of the core about part of the setup, said with the part's name.
+fn about(what: &str) -> impl Fn(Error) -> Error + '_ {
+    move |e| match e {
+        Error::Input(m) if !m.starts_with(what) => Error::input(format!("{what}: {m}")),
+        e => e,
+    }
+}
+
+impl Setup {
+    /// The chain with its losses and cart, the drive and the torque, as the core builds them.
+    fn apply(&self, chain: Chain) -> Result<(Chain, Drive, Torque), Error> {
+        let n = chain.n();
+        let zeros = vec![0.0; n];
+        let chain = chain.with_losses(
+            self.damping.as_deref().unwrap_or(&zeros),
+            self.friction.as_deref().unwrap_or(&zeros),
+            self.friction_velocity,
+        )?;
+        let cart = self.cart.map(|(m, c)| Cart::new(m, c)).transpose()?;
+        let chain = chain.with_cart(cart)?;
+        // The core's check of a run's cart state, which its Stepper::new does not call (yet).
+        multipendulum_core::error::check_finite("cart state (cart_x0, cart_v0)", &self.cart0)?;
+        let pivot = match &self.pivot {
+            [None, None] => None,
+            [x, y] => {
+                let axis = |s: &Option<Signal>, name| s.as_ref().map_or(Ok(Axis::Fixed(0.0)), |s| s.axis(name));
+                Some(Pivot { x: axis(x, "x")?, y: axis(y, "y")? })
+            }
+        };
+        let force = match &self.force {
+            Some(s) => Some(Force::Builtin(s.builtin(1).map_err(about("cart_force"))?)),
+            None => None,
+        };
+        let torque = match &self.torque {
+            None => Torque::Generalized(Builtin::None),
+            Some((false, s)) => Torque::Generalized(s.builtin(n).map_err(about("torque"))?),
+            Some((true, s)) => Torque::Joint(Joint(s.builtin(n).map_err(about("joint torque"))?)),
+        };
+        Ok((chain, Drive { pivot, force }, torque))
+    }
+}
+
+/// An empty setup (the ideal chain on a fixed pivot).
+#[no_mangle]
+pub extern "C" fn mp_setup_new() -> *mut Setup {
+    Box::into_raw(Box::default())
+}
+
+/// # Safety
+/// `setup` came from `mp_setup_new` and is not used again.
+#[no_mangle]
+pub unsafe extern "C" fn mp_setup_free(setup: *mut Setup) {
+    if !setup.is_null() {
+        drop(Box::from_raw(setup));
+    }
+}
+
+/// Joint losses: viscous `damping` (N m s/rad) and Coulomb `friction` (N m), `n` values each
+/// (null: none), and the friction's regularisation rate (rad/s; the core's default is in the
+/// facts, `defaults.friction_velocity`).
+///
+/// # Safety
+/// `setup` is live; non-null arrays hold `n` f64.
+#[no_mangle]
+pub unsafe extern "C" fn mp_setup_losses(setup: *mut Setup, n: usize, damping: *const f64, friction: *const f64, friction_velocity: f64) {
+    let s = &mut *setup;
+    s.damping = optional(damping, n).map(<[f64]>::to_vec);
+    s.friction = optional(friction, n).map(<[f64]>::to_vec);
+    s.friction_velocity = friction_velocity;
+}
+
+/// A cart carrying the pivot: its mass (kg), viscous damping (N s/m), initial position (m) and
+/// velocity (m/s).
+///
+/// # Safety
+/// `setup` is live.
+#[no_mangle]
+pub unsafe extern "C" fn mp_setup_cart(setup: *mut Setup, mass: f64, damping: f64, x0: f64, v0: f64) {
+    let s = &mut *setup;
+    s.cart = Some((mass, damping));
+    s.cart0 = [x0, v0];
+}
+
+unsafe fn set_signal(
+    slot: &mut Option<Signal>,
+    kind: i32,
+    rows: usize,
+    data: *const f64,
+    len: usize,
+    what: &str,
+) -> i32 {
+    match Signal::read(kind, rows, data, len, what) {
+        Ok(sig) => {
+            *slot = Some(sig);
+            DONE
+        }
+        Err(e) => fail(&e),
+    }
+}
+
+/// One axis of a prescribed pivot motion (`axis` 0: x, 1: y; m), a signal (`SIGNAL_*`; the
+/// other axis stays at 0 unless set). `INPUT_ERROR` for an unknown axis or kind.
+///
+/// # Safety
+/// `setup` is live; `data` holds `len` f64.
+#[no_mangle]
+pub unsafe extern "C" fn mp_setup_pivot(setup: *mut Setup, axis: i32, kind: i32, rows: usize, data: *const f64, len: usize) -> i32 {
+    let s = &mut *setup;
+    match axis {
+        0 | 1 => set_signal(&mut s.pivot[axis as usize], kind, rows, data, len, ["pivot x", "pivot y"][axis as usize]),
+        _ => fail(&Error::input(format!("pivot axis must be 0 (x) or 1 (y), got {axis}"))),
+    }
+}
+
+/// The driving torque (N m), a signal of one column per link: generalized torques conjugate
+/// to the absolute angles (`joint == 0`), or joint-motor torques between link i-1 and link i.
+///
+/// # Safety
+/// `setup` is live; `data` holds `len` f64.
+#[no_mangle]
+pub unsafe extern "C" fn mp_setup_torque(setup: *mut Setup, joint: i32, kind: i32, rows: usize, data: *const f64, len: usize) -> i32 {
+    let s = &mut *setup;
+    let mut slot = None;
+    let status = set_signal(&mut slot, kind, rows, data, len, "torque");
+    s.torque = slot.map(|sig| (joint != 0, sig));
+    status
+}
+
+/// The horizontal force on the cart (N), a signal of one column.
+///
+/// # Safety
+/// `setup` is live; `data` holds `len` f64.
+#[no_mangle]
+pub unsafe extern "C" fn mp_setup_cart_force(setup: *mut Setup, kind: i32, rows: usize, data: *const f64, len: usize) -> i32 {
+    set_signal(&mut (*setup).force, kind, rows, data, len, "cart_force")
+}
+
+// ---- Simulation --------------------------------------------------------------------------------
+
+/// A simulation: the core's stepper, with its chain's cart if it has one.
 pub struct Sim {
-    stepper: Stepper<Builtin>,
+    stepper: Stepper<Torque>,
+    cart: bool,
 }
 
 unsafe fn slice<'a>(ptr: *const f64, n: usize) -> &'a [f64] {
@@ -131,9 +401,11 @@ unsafe fn optional<'a>(ptr: *const f64, n: usize) -> Option<&'a [f64]> {
 /// `rods != 0`: uniform rods (com and inertia must be null); otherwise `com` and `inertia` may
 /// be null (point masses). `method` names an integrator (`rk4`, `dop853`, `gauss4`, `gauss6`);
 /// `dt` is the fixed step, or for `dop853` the first step when > 0 (0: chosen automatically).
+/// `setup` (null: none) adds the losses, the cart, the pivot motion and the drive.
 ///
 /// # Safety
-/// Every non-null array pointer holds `n` f64; `method` holds `method_len` bytes.
+/// Every non-null array pointer holds `n` f64; `method` holds `method_len` bytes; a non-null
+/// `setup` is live.
 #[no_mangle]
 pub unsafe extern "C" fn mp_sim_new(
     n: usize,
@@ -150,6 +422,7 @@ pub unsafe extern "C" fn mp_sim_new(
     atol: f64,
     theta0: *const f64,
     omega0: *const f64,
+    setup: *const Setup,
 ) -> *mut Sim {
     let build = || -> Result<Sim, Error> {
         let name = if method.is_null() { &[][..] } else { std::slice::from_raw_parts(method, method_len) };
@@ -165,10 +438,13 @@ pub unsafe extern "C" fn mp_sim_new(
         } else {
             Chain::new(lengths, masses, com, inertia, g)?
         };
+        let extra = if setup.is_null() { Setup::default() } else { (*setup).clone() };
+        let (chain, drive, torque) = extra.apply(chain)?;
+        let cart = chain.cart().is_some();
         let dt = if method.adaptive() && dt == 0.0 { None } else { Some(dt) };
-        let settings = Settings { method, dt, rtol, atol, ..Settings::default() };
-        let stepper = Stepper::new(chain, slice(theta0, n), slice(omega0, n), &settings, Builtin::None)?;
-        Ok(Sim { stepper })
+        let settings = Settings { method, dt, rtol, atol, drive, cart0: extra.cart0, ..Settings::default() };
+        let stepper = Stepper::new(chain, slice(theta0, n), slice(omega0, n), &settings, torque)?;
+        Ok(Sim { stepper, cart })
     };
     match build() {
         Ok(sim) => Box::into_raw(Box::new(sim)),
@@ -217,7 +493,8 @@ pub unsafe extern "C" fn mp_sim_n(sim: *const Sim) -> usize {
     (*sim).stepper.n()
 }
 
-/// Energy `T + U` of the current state (J).
+/// Energy `T + U` of the current state (J), in the lab frame (with the pivot's or the cart's
+/// motion).
 ///
 /// # Safety
 /// `sim` is a live handle from `mp_sim_new`.
@@ -233,8 +510,9 @@ pub unsafe extern "C" fn mp_sim_initial_energy(sim: *const Sim) -> f64 {
     (*sim).stepper.initial_energy()
 }
 
-/// The energy error of the current state, as the core defines it for every report:
-/// `|E - E0 - W| / (g sum |h_i| + max T)` (`multipendulum_core::run::energy`).
+/// The energy error of the current state, as the core defines it for every report: the
+/// residual of the balance `|E - E0 - W_torque - W_pivot - W_cart + D| / (g sum |h_i| + max T)`
+/// (`multipendulum_core::run::energy`).
 ///
 /// # Safety
 /// `sim` is a live handle from `mp_sim_new`.
@@ -282,7 +560,8 @@ pub unsafe extern "C" fn mp_sim_omega(sim: *mut Sim, out: *mut f64) {
     std::slice::from_raw_parts_mut(out, n).copy_from_slice(s.omega());
 }
 
-/// Joint positions into `out` (2N values: x, y of each link's far end; the pivot is the origin).
+/// Joint positions into `out` (2N values: x, y of each link's far end), relative to the pivot
+/// (add `mp_sim_base` for the lab frame).
 ///
 /// # Safety
 /// `sim` is a live handle; `out` holds 2N f64.
@@ -290,6 +569,58 @@ pub unsafe extern "C" fn mp_sim_omega(sim: *mut Sim, out: *mut f64) {
 pub unsafe extern "C" fn mp_sim_positions(sim: *const Sim, out: *mut f64) {
     let s = &(*sim).stepper;
     s.positions_into(std::slice::from_raw_parts_mut(out, 2 * s.n()));
+}
+
+/// The number of values `mp_sim_terms` writes.
+pub const TERMS: usize = 12;
+
+/// The energy terms and the base of the current state into `out` (`TERMS` values): kinetic,
+/// potential and total energy (J, lab frame); the work done since t = 0 by the torque, the
+/// pivot and the cart force; the energy dissipated (joint losses and cart damping); the
+/// balance's residual (`mp_sim_energy_error`); the base's position (x, y: the pivot, or the
+/// cart at y = 0); the cart's position and velocity (zeros without a cart). A negative status
+/// if the core cannot evaluate them.
+///
+/// # Safety
+/// `sim` is a live handle; `out` holds `TERMS` f64.
+#[no_mangle]
+pub unsafe extern "C" fn mp_sim_terms(sim: *mut Sim, out: *mut f64) -> i32 {
+    let sim = &mut *sim;
+    let terms = match sim.stepper.terms() {
+        Ok(t) => t,
+        Err(e) => return fail(&e),
+    };
+    let residual = sim.stepper.energy_error();
+    let (x, v) = sim.stepper.cart();
+    let base = if sim.cart { [x, 0.0] } else { terms.pivot_pos };
+    let values = [
+        terms.kinetic,
+        terms.energy - terms.kinetic,
+        terms.energy,
+        terms.torque,
+        terms.pivot,
+        terms.cart,
+        terms.dissipated,
+        residual,
+        base[0],
+        base[1],
+        x,
+        v,
+    ];
+    std::slice::from_raw_parts_mut(out, TERMS).copy_from_slice(&values);
+    DONE
+}
+
+/// The base's position into `out` (2 values, m): the pivot's (the origin when fixed), or the
+/// cart's at y = 0.
+///
+/// # Safety
+/// `sim` is a live handle; `out` holds 2 f64.
+#[no_mangle]
+pub unsafe extern "C" fn mp_sim_base(sim: *mut Sim, out: *mut f64) {
+    let sim = &mut *sim;
+    let base = if sim.cart { [sim.stepper.cart().0, 0.0] } else { sim.stepper.pivot() };
+    std::slice::from_raw_parts_mut(out, 2).copy_from_slice(&base);
 }
 
 #[cfg(test)]
@@ -321,8 +652,27 @@ mod tests {
         let omega0 = vec![0.0; n];
         mp_sim_new(
             n, 0, lengths.as_ptr(), masses.as_ptr(), std::ptr::null(), std::ptr::null(), 9.81,
-            method.as_ptr(), method.len(), dt, 1e-10, 1e-12, theta0.as_ptr(), omega0.as_ptr(),
+            method.as_ptr(), method.len(), dt, 1e-10, 1e-12, theta0.as_ptr(), omega0.as_ptr(), std::ptr::null(),
         )
+    }
+
+    /// A rod chain of unit links with `setup`, from `theta0` at rest.
+    unsafe fn with(setup: *mut Setup, method: &str, dt: f64, theta0: &[f64]) -> *mut Sim {
+        let n = theta0.len();
+        let ones = vec![1.0; n];
+        let omega0 = vec![0.0; n];
+        let sim = mp_sim_new(
+            n, 1, ones.as_ptr(), ones.as_ptr(), std::ptr::null(), std::ptr::null(), 9.81,
+            method.as_ptr(), method.len(), dt, 1e-10, 1e-12, theta0.as_ptr(), omega0.as_ptr(), setup,
+        );
+        mp_setup_free(setup);
+        sim
+    }
+
+    unsafe fn terms(sim: *mut Sim) -> [f64; TERMS] {
+        let mut out = [0.0; TERMS];
+        assert_eq!(mp_sim_terms(sim, out.as_mut_ptr()), DONE);
+        out
     }
 
     #[test]
@@ -366,6 +716,136 @@ mod tests {
             assert_eq!(p as usize % 8, 0);
             mp_free(p, 24);
             mp_free(std::ptr::null_mut(), 0);
+        }
+    }
+
+    #[test]
+    fn a_damped_chain_loses_what_it_dissipates() {
+        unsafe {
+            let setup = mp_setup_new();
+            let (damping, friction) = ([0.2, 0.1], [0.0, 0.05]);
+            mp_setup_losses(setup, 2, damping.as_ptr(), friction.as_ptr(), FRICTION_VELOCITY);
+            let sim = with(setup, "dop853", 0.0, &[1.0, 0.5]);
+            assert!(!sim.is_null(), "{}", message());
+            let start = terms(sim);
+            assert_eq!(mp_sim_advance(sim, 3.0, 100_000), DONE);
+            let [kinetic, potential, energy, torque, pivot, cart, dissipated, residual, bx, by, x, v] = terms(sim);
+            assert!(energy < start[2] - 0.5 && dissipated > 0.5, "{energy} {dissipated}");
+            assert!((kinetic + potential - energy).abs() < 1e-12);
+            assert!(((energy - start[2]) + dissipated).abs() < 1e-8, "the balance");
+            assert!(residual < 1e-8 && [torque, pivot, cart, bx, by, x, v] == [0.0; 7]);
+            mp_sim_free(sim);
+        }
+    }
+
+    #[test]
+    fn a_cart_pushed_by_its_force_moves_and_a_torque_does_work() {
+        unsafe {
+            let setup = mp_setup_new();
+            mp_setup_cart(setup, 2.0, 0.1, 0.5, 0.0);
+            let force = [1.0];
+            assert_eq!(mp_setup_cart_force(setup, SIGNAL_CONSTANT, 0, force.as_ptr(), 1), DONE);
+            // A joint torque table: 3 times, one column.
+            let table = [0.0, 1.0, 2.0, 0.5, 0.5, 0.0];
+            assert_eq!(mp_setup_torque(setup, 1, SIGNAL_CUBIC, 3, table.as_ptr(), 6), DONE);
+            let sim = with(setup, "rk4", 0.001, &[0.3]);
+            assert!(!sim.is_null(), "{}", message());
+            assert_eq!(mp_sim_advance(sim, 1.0, 100_000), DONE);
+            let t = terms(sim);
+            let (x, v) = (t[10], t[11]);
+            assert!(x > 0.55 && v > 0.0, "{x} {v}");
+            assert_eq!([t[8], t[9]], [x, 0.0]);
+            assert!(t[3] != 0.0 && t[5] > 0.0 && t[6] > 0.0 && t[7] < 1e-9, "{t:?}");
+            let mut base = [0.0; 2];
+            mp_sim_base(sim, base.as_mut_ptr());
+            assert_eq!(base, [x, 0.0]);
+            mp_sim_free(sim);
+        }
+    }
+
+    #[test]
+    fn a_shaken_pivot_moves_and_its_work_balances() {
+        unsafe {
+            let setup = mp_setup_new();
+            let y = [0.02, 300.0, std::f64::consts::FRAC_PI_2, 0.0];
+            assert_eq!(mp_setup_pivot(setup, 1, SIGNAL_SINUSOID, 0, y.as_ptr(), 4), DONE);
+            let sim = with(setup, "dop853", 0.0, &[3.0]);
+            assert!(!sim.is_null(), "{}", message());
+            let mut base = [0.0; 2];
+            mp_sim_base(sim, base.as_mut_ptr());
+            assert_eq!(base, [0.0, 0.02]);
+            assert_eq!(mp_sim_advance(sim, 0.01, 100_000), DONE);
+            mp_sim_base(sim, base.as_mut_ptr());
+            assert!((base[1] - 0.02 * (3.0f64 + std::f64::consts::FRAC_PI_2).sin()).abs() < 1e-15);
+            let t = terms(sim);
+            assert!(t[4] != 0.0 && t[7] < 1e-9, "{t:?}");
+            mp_sim_free(sim);
+        }
+    }
+
+    #[test]
+    fn bad_losses_a_bad_base_and_bad_signals_are_refused_with_the_core_message() {
+        unsafe {
+            let setup = mp_setup_new();
+            let damping = [0.1, -1.0];
+            mp_setup_losses(setup, 2, damping.as_ptr(), std::ptr::null(), FRICTION_VELOCITY);
+            assert!(with(setup, "rk4", 0.01, &[0.0, 0.0]).is_null());
+            assert_eq!(message(), "damping[1] must be >= 0 and finite, got -1");
+
+            let setup = mp_setup_new();
+            mp_setup_losses(setup, 1, std::ptr::null(), std::ptr::null(), 0.0);
+            assert!(with(setup, "rk4", 0.01, &[0.0]).is_null());
+            assert_eq!(message(), "friction_velocity must be > 0 and finite, got 0");
+            let setup = mp_setup_new();
+            mp_setup_losses(setup, 1, std::ptr::null(), std::ptr::null(), f64::NAN);
+            assert!(with(setup, "rk4", 0.01, &[0.0]).is_null());
+            assert_eq!(message(), "friction_velocity must be > 0 and finite, got NaN");
+
+            let setup = mp_setup_new();
+            mp_setup_cart(setup, 0.0, 0.0, 0.0, 0.0);
+            assert!(with(setup, "rk4", 0.01, &[0.0]).is_null());
+            assert_eq!(message(), "cart mass must be > 0 and finite, got 0");
+            let setup = mp_setup_new();
+            mp_setup_cart(setup, 1.0, 0.0, 0.0, f64::INFINITY);
+            assert!(with(setup, "rk4", 0.01, &[0.0]).is_null());
+            assert_eq!(message(), "cart state (cart_x0, cart_v0)[1] must be finite, got inf");
+
+            let setup = mp_setup_new();
+            mp_setup_cart(setup, 1.0, 0.0, 0.0, 0.0);
+            let x = [0.1];
+            mp_setup_pivot(setup, 0, SIGNAL_CONSTANT, 0, x.as_ptr(), 1);
+            assert!(with(setup, "rk4", 0.01, &[0.0]).is_null());
+            assert!(message().starts_with("a chain on a cart has no prescribed pivot motion"), "{}", message());
+
+            let setup = mp_setup_new();
+            let short = [0.0, 1.0];
+            mp_setup_pivot(setup, 1, SIGNAL_CUBIC, 1, short.as_ptr(), 2);
+            assert!(with(setup, "rk4", 0.01, &[0.0]).is_null());
+            assert_eq!(message(), "pivot y: a cubic table needs at least 2 samples, got 1");
+
+            let setup = mp_setup_new();
+            let line = [0.0, 1.0, 0.0, 1.0];
+            mp_setup_pivot(setup, 0, SIGNAL_LINEAR, 2, line.as_ptr(), 4);
+            assert!(with(setup, "rk4", 0.01, &[0.0]).is_null());
+            assert!(message().starts_with("pivot x: a table must be cubic"), "{}", message());
+
+            let setup = mp_setup_new();
+            let two = [1.0, 2.0];
+            mp_setup_torque(setup, 0, SIGNAL_CONSTANT, 0, two.as_ptr(), 2);
+            assert!(with(setup, "rk4", 0.01, &[0.0]).is_null());
+            assert_eq!(message(), "torque must have 1 entries (one per link), got 2");
+
+            let setup = mp_setup_new();
+            mp_setup_cart_force(setup, SIGNAL_CONSTANT, 0, two.as_ptr(), 1);
+            assert!(with(setup, "rk4", 0.01, &[0.0]).is_null());
+            assert!(message().starts_with("cart_force needs a chain with a cart"), "{}", message());
+
+            let setup = mp_setup_new();
+            assert_eq!(mp_setup_torque(setup, 0, 7, 0, two.as_ptr(), 2), INPUT_ERROR);
+            assert_eq!(message(), "torque: unknown signal kind 7");
+            assert_eq!(mp_setup_pivot(setup, 2, SIGNAL_CONSTANT, 0, two.as_ptr(), 1), INPUT_ERROR);
+            assert_eq!(message(), "pivot axis must be 0 (x) or 1 (y), got 2");
+            mp_setup_free(setup);
         }
     }
 }

@@ -18,7 +18,7 @@ export class EngineError extends Error {
 export let METHODS = [];
 /** The methods that choose their own step (tolerances instead of dt). */
 export let ADAPTIVE = new Set();
-/** The core's defaults: { rtol, atol, max_steps, method }. */
+/** The core's defaults: { rtol, atol, max_steps, friction_velocity, method }. */
 export let DEFAULTS = {};
 /** Per method: { order, symplectic, implicit, adaptive, needs_dt, forms }. */
 export let METHOD_INFO = {};
@@ -26,6 +26,9 @@ export let METHOD_INFO = {};
 const DONE = 0;
 const BUDGET = 1;
 const INPUT_ERROR = -1;
+// The signal forms of crates/wasm (SIGNAL_*).
+const SIGNAL = { constant: 0, sinusoid: 1, linear: 2, cubic: 3 };
+const TERMS = 12;
 
 /** Load the module (next to this file unless `url` says otherwise). */
 export async function loadEngine(url = new URL("./multipendulum.wasm", import.meta.url)) {
@@ -76,9 +79,47 @@ export class Engine {
   }
 
   /**
+   * A signal as the module takes it: [kind, rows, data]. `s` is a number (a constant), or
+   * { kind: "constant", value } | { kind: "sinusoid", amplitude, frequency, phase?, offset? } |
+   * { kind: "table", t, values, interpolation? } (values: one row per time). `n`: the columns
+   * (one per link for a torque, else null: one number each).
+   */
+  signal(s, what, n = null, cubicOnly = false) {
+    const bad = (msg) => { throw new EngineError(`${what}: ${msg}`, "input"); };
+    const values = (v, name) => {
+      const a = n == null ? [v] : Array.isArray(v) ? v : new Array(n).fill(v);
+      if (!a.every((x) => typeof x === "number")) bad(`${name} must be ${n == null ? "a number" : "numbers"}`);
+      if (n != null && a.length !== n) bad(`${name} must have ${n} entries (one per link), got ${a.length}`);
+      return a;
+    };
+    if (typeof s === "number") return [SIGNAL.constant, 0, values(s, "value")];
+    if (s == null || typeof s !== "object") bad(`expected a number or a signal { kind, ... }, got ${s}`);
+    if (s.kind === "constant") return [SIGNAL.constant, 0, values(s.value, "value")];
+    if (s.kind === "sinusoid") {
+      return [SIGNAL.sinusoid, 0, ["amplitude", "frequency", "phase", "offset"].flatMap(
+        (k) => values(s[k] ?? (k === "phase" || k === "offset" ? 0 : undefined), k))];
+    }
+    if (s.kind === "table") {
+      const interp = s.interpolation ?? (cubicOnly ? "cubic" : "linear");
+      if (interp !== "linear" && interp !== "cubic") bad(`interpolation must be "linear" or "cubic", got ${JSON.stringify(interp)}`);
+      if (!Array.isArray(s.t) || !Array.isArray(s.values)) bad("a table needs the arrays t and values");
+      const rows = s.values.map((row, i) => {
+        const r = n == null ? (Array.isArray(row) ? row : [row]) : row;
+        if (!Array.isArray(r) || r.length !== (n ?? 1)) bad(`values[${i}] must have ${n ?? 1} entries, got ${Array.isArray(r) ? r.length : 1}`);
+        return r;
+      });
+      return [SIGNAL[interp], s.t.length, [...s.t, ...rows.flat()]];
+    }
+    return bad(`kind must be "constant", "sinusoid" or "table", got ${JSON.stringify(s.kind)}`);
+  }
+
+  /**
    * Start a simulation at t = 0. `p`: { kind: "points" | "rods", lengths, masses, com?, inertia?,
-   * g, method, dt, rtol, atol, theta (rad), omega (rad/s) }. Arrays have one entry per link.
-   * Throws EngineError for values the core refuses.
+   * g, method, dt, rtol, atol, theta (rad), omega (rad/s) }, and optionally the losses and the
+   * base: damping (N m s/rad) and friction (N m), one per joint; friction_velocity (rad/s);
+   * cart: { mass, damping?, x0?, v0?, force? }; pivot: { x?, y? } (m); torque: { convention:
+   * "generalized" | "joint", kind, ... } (N m, one column per link). Signals as in `signal`.
+   * Arrays have one entry per link. Throws EngineError for values the core refuses.
    */
   simulation(p) {
     const n = p.lengths.length;
@@ -88,7 +129,7 @@ export class Engine {
         throw new EngineError(`${name} must have ${n} entries (one per link), got ${a.length}`, "input");
       }
     };
-    ["masses", "com", "inertia", "theta", "omega"].forEach(same);
+    ["masses", "com", "inertia", "theta", "omega", "damping", "friction"].forEach(same);
     const allocs = [];
     const put = (v) => {
       const a = this.put(v);
@@ -99,15 +140,46 @@ export class Engine {
     const namePtr = this.x.mp_alloc(Math.max(name.length, 1));
     allocs.push([namePtr, Math.max(name.length, 1)]);
     new Uint8Array(this.x.memory.buffer, namePtr, name.length).set(name);
+    const setup = this.x.mp_setup_new();
+    const check = (status) => {
+      if (status < 0) throw new EngineError(this.lastError(), "input");
+    };
+    const signal = (fn, sig) => {
+      const [kind, rows, data] = sig;
+      check(fn(kind, rows, put(data), data.length));
+    };
     try {
+      if (p.damping != null || p.friction != null || p.friction_velocity != null) {
+        this.x.mp_setup_losses(setup, n, put(p.damping), put(p.friction), p.friction_velocity ?? DEFAULTS.friction_velocity);
+      }
+      if (p.cart != null) {
+        const c = p.cart;
+        this.x.mp_setup_cart(setup, c.mass, c.damping ?? 0, c.x0 ?? 0, c.v0 ?? 0);
+        if (c.force != null) {
+          signal((...a) => this.x.mp_setup_cart_force(setup, ...a), this.signal(c.force, "cart_force"));
+        }
+      }
+      for (const [i, axis] of ["x", "y"].entries()) {
+        if (p.pivot?.[axis] != null) {
+          signal((...a) => this.x.mp_setup_pivot(setup, i, ...a), this.signal(p.pivot[axis], `pivot ${axis}`, null, true));
+        }
+      }
+      if (p.torque != null) {
+        const conv = p.torque.convention ?? "generalized";
+        if (conv !== "generalized" && conv !== "joint") {
+          throw new EngineError(`torque.convention must be "generalized" or "joint", got ${JSON.stringify(conv)}`, "input");
+        }
+        signal((...a) => this.x.mp_setup_torque(setup, conv === "joint" ? 1 : 0, ...a), this.signal(p.torque, "torque", n));
+      }
       const handle = this.x.mp_sim_new(
         n, p.kind === "rods" ? 1 : 0, put(p.lengths), put(p.masses), put(p.com), put(p.inertia),
         p.g, namePtr, name.length, p.dt ?? 0, p.rtol ?? DEFAULTS.rtol, p.atol ?? DEFAULTS.atol,
-        put(p.theta), put(p.omega ?? new Array(n).fill(0)),
+        put(p.theta), put(p.omega ?? new Array(n).fill(0)), setup,
       );
       if (handle === 0) throw new EngineError(this.lastError(), "input");
       return new Simulation(this, handle, n, p);
     } finally {
+      this.x.mp_setup_free(setup);
       for (const [ptr, bytes] of allocs) if (ptr) this.x.mp_free(ptr, bytes);
     }
   }
@@ -120,8 +192,9 @@ export class Simulation {
     this.handle = handle;
     this.n = n;
     this.params = params;
-    this.bytes = 16 * n;
-    this.buf = this.x.mp_alloc(this.bytes); // 2N f64 for results
+    this.bytes = 8 * Math.max(2 * n, TERMS);
+    this.buf = this.x.mp_alloc(this.bytes); // 2N f64 (or the terms) for results
+    this.hasCart = params.cart != null;
   }
 
   /** Advance towards time `t` with at most `maxSteps` steps; true once reached. Throws
@@ -148,8 +221,24 @@ export class Simulation {
   }
   theta() { return this.read(this.x.mp_sim_theta, this.n); }
   omega() { return this.read(this.x.mp_sim_omega, this.n); }
-  /** Joint positions [x0, y0, x1, y1, ...] (m), far end of each link; the pivot is the origin. */
+  /** Joint positions [x0, y0, x1, y1, ...] (m), far end of each link, relative to the pivot
+   *  (add `base()` for the lab frame). */
   positions() { return this.read(this.x.mp_sim_positions, 2 * this.n); }
+  /** The base's position [x, y] (m): the pivot's (the origin when fixed), or the cart's at y = 0. */
+  base() { return this.read(this.x.mp_sim_base, 2); }
+
+  /** The energy terms of the current state, as the core computes them (J, lab frame, work since
+   *  t = 0): { kinetic, potential, energy, work: { torque, pivot, cart }, workIn (their sum),
+   *  dissipated, residual (the balance's, = energyError), base: [x, y], cart: { x, v } | null }. */
+  terms() {
+    const status = this.x.mp_sim_terms(this.handle, this.buf);
+    if (status < 0) throw new EngineError(this.engine.lastError(), status === INPUT_ERROR ? "input" : "integration");
+    const [kinetic, potential, energy, torque, pivot, cart, dissipated, residual, bx, by, x, v] = this.engine.f64(this.buf, TERMS);
+    return {
+      kinetic, potential, energy, work: { torque, pivot, cart }, workIn: torque + pivot + cart, dissipated, residual,
+      base: [bx, by], cart: this.hasCart ? { x, v } : null,
+    };
+  }
 
   free() {
     if (this.handle) {

@@ -3,33 +3,42 @@
 // fields (strings) -> setup (numbers) -> a new simulation built by the core, which checks it.
 // Nothing is applied unless the core accepts it; the message says what was refused.
 import { ADAPTIVE, DEFAULTS as CORE_DEFAULTS, EngineError, loadEngine, METHOD_INFO, METHODS } from "./engine.js";
-import { fromToml, parseToml, ScenarioError } from "./scenario.js";
+import { fromToml, parseInline, parseToml, ScenarioError, toInline } from "./scenario.js";
 
 const MAX_N = 100;
 const TRAIL_SECONDS = 2;
 const PLOT_POINTS = 1500;
 const FRAME_BUDGET_MS = 10; // integration time per frame; beyond it the run slows down instead
 const DEG = Math.PI / 180;
-/** The core's energy error: |E - E0| over the potential well's depth plus the largest kinetic energy. */
+/** The core's energy error: |E - E0| over the potential well's depth plus the largest kinetic
+ *  energy; with losses or a drive, the residual of the balance E - E0 = W - D over the same scale. */
 const ERROR_LABEL = "energy error |ΔE|/(g Σ|hᵢ| + T_max)";
+const BALANCE_LABEL = "balance residual |ΔE − W + D|/(g Σ|hᵢ| + T_max)";
 
 // The page's own defaults; method, tol and atol are the core's, filled in once it has loaded.
 const DEFAULTS = {
   n: "2", kind: "points", lengths: "1", masses: "1", g: "9.81", theta: "130, 160",
   method: "", dt: "0.002", tol: "", speed: "1", omega: "0", com: "", inertia: "",
-  atol: "", name: "",
+  atol: "", name: "", damping: "0", friction: "0", friction_velocity: "", pivot_x: "", pivot_y: "",
+  cart_mass: "", cart_damping: "0", cart_x0: "0", cart_v0: "0", cart_force: "", torque: "",
 };
 const FIELDS = Object.keys(DEFAULTS);
-const LIST_FIELDS = ["lengths", "masses", "theta", "omega", "com", "inertia"];
+const LIST_FIELDS = ["lengths", "masses", "theta", "omega", "com", "inertia", "damping", "friction"];
 const LABELS = {
   n: "N", lengths: "Lengths", masses: "Masses", g: "g", theta: "Angles", omega: "Angular velocities",
   com: "Centres of mass", inertia: "Inertias", dt: "dt", tol: "Tolerance", atol: "atol", speed: "Speed",
+  damping: "Damping", friction: "Friction", friction_velocity: "Friction velocity", pivot_x: "Pivot x",
+  pivot_y: "Pivot y", cart_mass: "Cart mass", cart_damping: "Cart damping", cart_x0: "Cart x₀", cart_v0: "Cart v₀",
+  cart_force: "Cart force", torque: "Torque",
 };
 // Which field a core message is about (the core names its arguments).
 const FIELD_OF_MESSAGE = [
   [/^lengths/, "lengths"], [/^(masses|link \d+ leaves|the sum of masses)/, "masses"], [/^com/, "com"],
   [/^inertia/, "inertia"], [/^g /, "g"], [/^theta0/, "theta"], [/^omega0/, "omega"], [/^dt /, "dt"],
-  [/^rtol/, "tol"], [/^atol/, "atol"], [/^method/, "method"],
+  [/^rtol/, "tol"], [/^atol/, "atol"], [/^method/, "method"], [/^friction_velocity/, "friction_velocity"],
+  [/^damping/, "damping"], [/^friction/, "friction"], [/^cart mass/, "cart_mass"], [/^cart damping/, "cart_damping"],
+  [/^a chain on a cart/, "cart_mass"], [/^cart state/, "cart_x0"], [/^pivot x/, "pivot_x"], [/^pivot y/, "pivot_y"], [/^cart_force/, "cart_force"],
+  [/^(joint )?torque|^(amplitude|frequency|phase|offset|values|t)\[/, "torque"],
 ];
 
 /** A value the page refuses before the core sees it; `field` names the input. */
@@ -48,6 +57,8 @@ const ui = {
   play: $("play"), step: $("step"), reset: $("reset"), share: $("share"), load: $("load"),
   message: $("message"), name: $("name"), status: $("status"),
   t: $("t"), energy: $("energy"), error: $("error"), errorLabel: $("error-label"), steps: $("steps"), fps: $("fps"),
+  kinetic: $("kinetic"), potential: $("potential"), work: $("work"), dissipated: $("dissipated"), cartX: $("cart-x"),
+  pivot: $("pivot"),
 };
 
 const state = {
@@ -58,8 +69,11 @@ const state = {
   playing: false,
   clock: 0, // the simulated time the display should be at
   lagging: false,
-  trail: [], // [t, x, y] of the tip
+  trail: [], // [t, x, y] of the tip (lab frame)
+  pivotTrail: [], // [t, x, y] of the base
   history: [], // [t, energy error]
+  terms: null, // the core's energy terms of the state shown
+  view: null, // the world point at the canvas centre (it follows a cart in jumps)
   lastFrame: 0,
   fps: 0,
   drag: null,
@@ -94,6 +108,22 @@ function list(field, text, n, { optional = false } = {}) {
   return values;
 }
 
+/** A signal field (TOML inline, as in a scenario file): null when empty. */
+function signalField(field, text) {
+  const s = String(text).trim();
+  if (s === "") return null;
+  try {
+    return parseInline(s);
+  } catch (e) {
+    if (!(e instanceof ScenarioError)) throw e;
+    throw new FieldError(field, `${LABELS[field]}: ${e.message.replace(/^line 1: /, "")} (a number, or { kind = "sinusoid", ... } as in a scenario file)`);
+  }
+}
+
+function optionalNumber(field, text) {
+  return String(text).trim() === "" ? null : number(field, text);
+}
+
 function parseSpeed(text) {
   const allowed = [...form.elements.speed.options].map((o) => o.value);
   if (!allowed.includes(String(text))) {
@@ -114,6 +144,12 @@ function parseFields(f) {
     throw new FieldError("kind", `Links must be "points" or "rods", got "${f.kind}"`);
   }
   const method = String(f.method);
+  const pivot = { x: signalField("pivot_x", f.pivot_x), y: signalField("pivot_y", f.pivot_y) };
+  const cartMass = optionalNumber("cart_mass", f.cart_mass);
+  const torque = signalField("torque", f.torque);
+  if (torque != null && (typeof torque !== "object" || Array.isArray(torque))) {
+    throw new FieldError("torque", 'Torque: expected a table as in a scenario file\'s [torque], e.g. { kind = "constant", convention = "joint", value = [1, 0] }');
+  }
   return {
     name: String(f.name ?? ""),
     kind: f.kind,
@@ -124,6 +160,15 @@ function parseFields(f) {
     g: number("g", f.g),
     theta: list("theta", f.theta, n).map((x) => x * DEG),
     omega: list("omega", f.omega, n).map((x) => x * DEG),
+    damping: list("damping", f.damping, n),
+    friction: list("friction", f.friction, n),
+    friction_velocity: optionalNumber("friction_velocity", f.friction_velocity),
+    pivot: pivot.x == null && pivot.y == null ? null : Object.fromEntries(Object.entries(pivot).filter(([, v]) => v != null)),
+    cart: cartMass == null ? null : {
+      mass: cartMass, damping: number("cart_damping", f.cart_damping), x0: number("cart_x0", f.cart_x0),
+      v0: number("cart_v0", f.cart_v0), force: signalField("cart_force", f.cart_force),
+    },
+    torque,
     method,
     dt: ADAPTIVE.has(method) ? 0 : number("dt", f.dt),
     rtol: ADAPTIVE.has(method) ? number("tol", f.tol) : CORE_DEFAULTS.rtol,
@@ -164,9 +209,15 @@ function refuse(field, message) {
 
 function restart() {
   // The energy error is the core's, defined once for every report (never re-derived here).
-  ui.errorLabel.textContent = ERROR_LABEL;
+  const s = state.setup;
+  const ideal = !s.pivot && !s.cart && !s.torque && ![...s.damping, ...s.friction].some((v) => v !== 0);
+  ui.errorLabel.textContent = ideal ? ERROR_LABEL : BALANCE_LABEL;
+  for (const el of document.querySelectorAll("[data-term=cart]")) el.hidden = !s.cart;
+  for (const el of document.querySelectorAll("[data-term=pivot]")) el.hidden = !s.pivot;
+  state.view = null;
   state.clock = 0;
   state.trail = [];
+  state.pivotTrail = [];
   state.history = [];
   state.failed = false;
   state.lagging = false;
@@ -190,7 +241,8 @@ function writeForm(f) {
   const adaptive = ADAPTIVE.has(f.method);
   for (const label of form.querySelectorAll("label[data-for]")) {
     const want = label.dataset.for;
-    label.hidden = (want === "fixed" && adaptive) || (want === "adaptive" && !adaptive) || (want === "points" && f.kind === "rods");
+    label.hidden = (want === "fixed" && adaptive) || (want === "adaptive" && !adaptive) || (want === "points" && f.kind === "rods")
+      || (want === "cart" && String(f.cart_mass).trim() === "");
   }
   ui.name.textContent = f.name;
 }
@@ -263,6 +315,19 @@ function fieldsFromScenario(s) {
   f.g = fmt(s.g);
   f.theta = compress(s.theta.map((x) => x / DEG));
   f.omega = compress(s.omega.map((x) => x / DEG));
+  // The losses and the drive: what the scenario gives, else none (not the previous setup's).
+  f.damping = s.damping ? compress(s.damping) : DEFAULTS.damping;
+  f.friction = s.friction ? compress(s.friction) : DEFAULTS.friction;
+  f.friction_velocity = s.friction_velocity != null ? fmt(s.friction_velocity) : DEFAULTS.friction_velocity;
+  const signal = (v) => (v == null ? "" : v.kind === "constant" && typeof v.value === "number" ? fmt(v.value) : toInline(v));
+  f.pivot_x = signal(s.pivot?.x);
+  f.pivot_y = signal(s.pivot?.y);
+  f.cart_mass = s.cart ? fmt(s.cart.mass) : "";
+  f.cart_damping = s.cart ? fmt(s.cart.damping ?? 0) : DEFAULTS.cart_damping;
+  f.cart_x0 = s.cart ? fmt(s.cart.x0 ?? 0) : DEFAULTS.cart_x0;
+  f.cart_v0 = s.cart ? fmt(s.cart.v0 ?? 0) : DEFAULTS.cart_v0;
+  f.cart_force = signal(s.cart?.force);
+  f.torque = s.torque ? toInline(s.torque) : "";
   f.method = s.method;
   if (s.dt != null) f.dt = fmt(s.dt);
   f.tol = fmt(s.rtol ?? CORE_DEFAULTS.rtol);
@@ -309,13 +374,17 @@ function guarded(fn) {
 function record() {
   const sim = state.sim;
   const t = sim.t;
+  const terms = (state.terms = sim.terms());
+  const [bx, by] = terms.base;
   const tip = sim.positions().slice(-2);
-  const last = state.trail[state.trail.length - 1];
-  if (!last || t > last[0]) state.trail.push([t, tip[0], tip[1]]);
-  while (state.trail.length > 2 && t - state.trail[0][0] > TRAIL_SECONDS) state.trail.shift();
+  for (const [trail, x, y] of [[state.trail, bx + tip[0], by + tip[1]], [state.pivotTrail, bx, by]]) {
+    const last = trail[trail.length - 1];
+    if (!last || t > last[0]) trail.push([t, x, y]);
+    while (trail.length > 2 && t - trail[0][0] > TRAIL_SECONDS) trail.shift();
+  }
   const h = state.history;
   if (!h.length || t > h[h.length - 1][0]) {
-    h.push([t, sim.energyError]);
+    h.push([t, terms.residual]);
     if (h.length > PLOT_POINTS) state.history = h.filter((_, i) => i % 2 === 0 || i === h.length - 1);
   }
 }
@@ -349,12 +418,31 @@ function fitCanvas(canvas) {
   return dpr;
 }
 
-/** World (m) to canvas pixels: pivot in the middle, the stretched chain just fits. */
+/** How far a pivot axis goes from the origin (m), read off its signal. */
+function reach(sig) {
+  if (sig == null) return 0;
+  if (typeof sig === "number") return Math.abs(sig);
+  if (sig.kind === "constant") return Math.abs(sig.value);
+  if (sig.kind === "sinusoid") return Math.abs(sig.offset ?? 0) + Math.abs(sig.amplitude);
+  return Math.max(...sig.values.map(Math.abs));
+}
+
+/** World (m) to canvas pixels: the origin (or, on a cart, a point of the rail that jumps to
+ *  follow it) in the middle, the stretched chain and the pivot's travel just fit. */
 function viewTransform() {
-  const total = state.setup.lengths.reduce((a, b) => a + b, 0);
+  const s = state.setup;
+  const chain = s.lengths.reduce((a, b) => a + b, 0);
+  const total = chain + Math.hypot(reach(s.pivot?.x), reach(s.pivot?.y));
   const size = Math.min(view.width, view.height);
   const scale = (0.47 * size) / total;
-  return { cx: view.width / 2, cy: view.height / 2, scale };
+  if (state.view == null) state.view = [s.cart ? s.cart.x0 : 0, 0];
+  if (s.cart && state.terms) {
+    // Recentre when the cart nears the edge, in a jump: the rail's ticks show it moving.
+    const x = state.terms.base[0];
+    const half = (0.5 * view.width) / scale;
+    if (Math.abs(x - state.view[0]) > 0.8 * half) state.view = [x, 0];
+  }
+  return { cx: view.width / 2 - state.view[0] * scale, cy: view.height / 2 + state.view[1] * scale, scale, total };
 }
 
 const linkColor = (i, n) => `hsl(${n > 1 ? 212 - (190 * i) / (n - 1) : 212}, 62%, 45%)`;
@@ -363,13 +451,24 @@ function draw() {
   if (!state.sim) return;
   const dpr = fitCanvas(view);
   const ctx = view.getContext("2d");
-  const { cx, cy, scale } = viewTransform();
+  const { cx, cy, scale, total } = viewTransform();
   const px = (x) => cx + x * scale;
   const py = (y) => cy - y * scale;
   ctx.clearRect(0, 0, view.width, view.height);
   const { lengths, masses, kind } = state.setup;
   const n = lengths.length;
-  const pos = state.sim.positions();
+  const [bx, by] = state.terms.base;
+  const pos = state.sim.positions().map((v, i) => v + (i % 2 ? by : bx));
+
+  if (state.setup.cart) drawRail(ctx, px, py, scale, total, dpr);
+  if (state.setup.pivot) {
+    // The pivot's recent path.
+    ctx.strokeStyle = "rgba(29, 39, 51, 0.35)";
+    ctx.lineWidth = 1.5 * dpr;
+    ctx.beginPath();
+    state.pivotTrail.forEach(([, x, y], i) => (i ? ctx.lineTo(px(x), py(y)) : ctx.moveTo(px(x), py(y))));
+    ctx.stroke();
+  }
 
   // The tip's trail, fading with age.
   const trail = state.trail;
@@ -389,7 +488,7 @@ function draw() {
   const shortest = Math.min(...lengths) * scale;
   const rodWidth = Math.min(Math.max(0.14 * shortest, 2.5 * dpr), 12 * dpr);
   ctx.lineWidth = kind === "rods" ? rodWidth : Math.max(1.5 * dpr, Math.min(3 * dpr, 0.05 * shortest));
-  let x0 = 0, y0 = 0;
+  let x0 = bx, y0 = by;
   for (let i = 0; i < n; i++) {
     ctx.strokeStyle = kind === "rods" ? linkColor(i, n) : "#3b4652";
     ctx.beginPath();
@@ -413,11 +512,37 @@ function draw() {
   // The pivot.
   ctx.fillStyle = "#1d2733";
   ctx.beginPath();
-  ctx.arc(cx, cy, 4 * dpr, 0, 2 * Math.PI);
+  ctx.arc(px(bx), py(by), 4 * dpr, 0, 2 * Math.PI);
   ctx.fill();
 
   drawPlot();
   readouts();
+}
+
+/** The cart's colour (the tests find the block by it). */
+const CART_COLOR = "#a0722a";
+
+/** The rail (y = 0) with ticks every `step` m, and the cart, a block centred on the pivot. */
+function drawRail(ctx, px, py, scale, total, dpr) {
+  const y = py(0);
+  ctx.strokeStyle = "#9aa4ae";
+  ctx.lineWidth = 2 * dpr;
+  ctx.beginPath();
+  ctx.moveTo(0, y);
+  ctx.lineTo(view.width, y);
+  ctx.stroke();
+  const step = 10 ** Math.floor(Math.log10(total / 2));
+  const left = (0 - px(0)) / scale, right = (view.width - px(0)) / scale;
+  ctx.lineWidth = 1 * dpr;
+  ctx.beginPath();
+  for (let k = Math.ceil(left / step); k <= Math.floor(right / step); k++) {
+    ctx.moveTo(px(k * step), y);
+    ctx.lineTo(px(k * step), y + 6 * dpr);
+  }
+  ctx.stroke();
+  const w = Math.max(24 * dpr, 0.18 * total * scale), h = 0.5 * w;
+  ctx.fillStyle = CART_COLOR;
+  ctx.fillRect(px(state.terms.base[0]) - w / 2, y - h / 2, w, h);
 }
 
 function drawPlot() {
@@ -450,7 +575,7 @@ function drawPlot() {
   }
   ctx.textAlign = "left";
   ctx.textBaseline = "bottom";
-  ctx.fillText(`${ERROR_LABEL} over t = 0 … ${fmt(+tMax.toFixed(1))} s`, left + 4 * dpr, H - 2 * dpr);
+  ctx.fillText(`${ui.errorLabel.textContent} over t = 0 … ${fmt(+tMax.toFixed(1))} s`, left + 4 * dpr, H - 2 * dpr);
   if (!h.length) return;
   ctx.strokeStyle = "#2f6fb3";
   ctx.lineWidth = 1.5 * dpr;
@@ -461,15 +586,30 @@ function drawPlot() {
 
 function readouts() {
   const sim = state.sim;
+  const terms = state.terms;
+  const joules = (v) => `${v.toPrecision(6)} J`;
   ui.t.textContent = `${sim.t.toFixed(3)} s`;
-  ui.energy.textContent = `${sim.energy.toPrecision(9)} J`;
-  const err = sim.energyError;
-  ui.error.textContent = err.toExponential(2);
+  ui.energy.textContent = `${terms.energy.toPrecision(9)} J`;
+  ui.error.textContent = terms.residual.toExponential(2);
+  ui.kinetic.textContent = joules(terms.kinetic);
+  ui.potential.textContent = joules(terms.potential);
+  ui.work.textContent = joules(terms.workIn);
+  ui.work.title = `torque ${joules(terms.work.torque)}, pivot ${joules(terms.work.pivot)}, cart force ${joules(terms.work.cart)}`;
+  ui.dissipated.textContent = joules(terms.dissipated);
+  if (terms.cart) ui.cartX.textContent = `${terms.cart.x.toFixed(3)} m`;
+  ui.pivot.textContent = `${terms.base[0].toFixed(4)}, ${terms.base[1].toFixed(4)} m`;
   ui.steps.textContent = String(sim.steps);
   ui.fps.textContent = state.playing && state.fps ? state.fps.toFixed(0) : "–";
   const s = state.setup;
   const how = ADAPTIVE.has(s.method) ? `rtol ${fmt(s.rtol)}` : `dt ${fmt(s.dt)} s`;
-  const what = `${s.lengths.length} ${s.kind === "rods" ? "rod" : "point mass"}${s.lengths.length > 1 ? (s.kind === "rods" ? "s" : "es") : ""}`;
+  const extras = [];
+  if (s.damping.some((v) => v !== 0)) extras.push("damped");
+  if (s.friction.some((v) => v !== 0)) extras.push("friction");
+  if (s.pivot) extras.push(`moving pivot (${Object.keys(s.pivot).join(", ")})`);
+  if (s.cart) extras.push(`on a ${fmt(s.cart.mass)} kg cart${s.cart.force != null ? " pushed" : ""}`);
+  if (s.torque) extras.push(`${s.torque.convention ?? "generalized"} ${s.torque.kind} torque`);
+  const what = `${s.lengths.length} ${s.kind === "rods" ? "rod" : "point mass"}${s.lengths.length > 1 ? (s.kind === "rods" ? "s" : "es") : ""}`
+    + (extras.length ? `, ${extras.join(", ")}` : "");
   const lag = state.playing && state.lagging ? " · slower than real time: the integrator cannot keep up" : "";
   ui.status.textContent = `${what} · ${s.method}, ${how} · ${s.speed} × real time${lag}`;
 }
@@ -487,11 +627,12 @@ function pointer(e) {
 function linkAt(mx, my) {
   const { cx, cy, scale } = viewTransform();
   const pos = state.sim.positions();
+  const [bx, by] = state.terms.base;
   const tolerance = 12 * (window.devicePixelRatio || 1);
   let best = -1, bestD = tolerance;
-  let x0 = cx, y0 = cy;
+  let x0 = cx + bx * scale, y0 = cy - by * scale;
   for (let i = 0; i < state.sim.n; i++) {
-    const x1 = cx + pos[2 * i] * scale, y1 = cy - pos[2 * i + 1] * scale;
+    const x1 = cx + (bx + pos[2 * i]) * scale, y1 = cy - (by + pos[2 * i + 1]) * scale;
     const dx = x1 - x0, dy = y1 - y0;
     const u = Math.max(0, Math.min(1, ((mx - x0) * dx + (my - y0) * dy) / (dx * dx + dy * dy || 1)));
     const d = Math.hypot(mx - (x0 + u * dx), my - (y0 + u * dy));
@@ -539,7 +680,9 @@ function dragTo(mx, my) {
   const i = state.drag.link;
   const pos = state.sim.positions();
   const [x0, y0] = i > 0 ? [pos[2 * i - 2], pos[2 * i - 1]] : [0, 0];
-  const wx = (mx - cx) / scale, wy = (cy - my) / scale;
+  // The pointer relative to the pivot, as the positions are.
+  const [bx, by] = state.terms.base;
+  const wx = (mx - cx) / scale - bx, wy = (cy - my) / scale - by;
   const angle = Math.atan2(wx - x0, -(wy - y0)) / DEG;
   const theta = state.setup.theta.map((x) => x / DEG);
   theta[i] = Math.round(angle * 10) / 10;
@@ -589,11 +732,15 @@ ui.share.addEventListener("click", async () => {
   }
 });
 ui.load.addEventListener("change", async () => {
-  const file = ui.load.files[0];
-  if (!file) return;
+  // The scenario, and the CSV files of its tables if they were chosen with it.
+  const chosen = [...ui.load.files];
   ui.load.value = "";
+  if (!chosen.length) return;
+  const file = chosen.find((f) => /\.toml$/i.test(f.name)) ?? chosen[0];
+  const others = new Map();
+  for (const f of chosen) if (f !== file) others.set(f.name, await f.text());
   try {
-    applyScenario(fromToml(parseToml(await file.text())), file.name);
+    applyScenario(fromToml(parseToml(await file.text()), others), file.name);
   } catch (e) {
     if (!(e instanceof ScenarioError)) throw e;
     showMessage(`Cannot load ${file.name}: ${e.message}`);

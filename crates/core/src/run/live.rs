@@ -31,6 +31,7 @@ impl<T: TorqueSource> Stepper<T> {
     pub fn new(chain: Chain, theta0: &[f64], omega0: &[f64], settings: &Settings, torque: T) -> Result<Self> {
         chain.check_state("theta0", theta0)?;
         chain.check_state("omega0", omega0)?;
+        super::simulate::check_cart0(&chain, settings)?;
         // The run has no end; any t_end checks the step and tolerance settings the same way.
         let mut checked = settings.clone();
         checked.t_eval = None;

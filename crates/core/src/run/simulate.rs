@@ -588,7 +588,7 @@ fn describe(layout: Layout) -> String {
 }
 
 /// The cart's initial state must be finite (and is only meaningful with a cart).
-fn check_cart0(chain: &Chain, settings: &Settings) -> Result<()> {
+pub(crate) fn check_cart0(chain: &Chain, settings: &Settings) -> Result<()> {
     crate::error::check_finite("cart state (cart_x0, cart_v0)", &settings.cart0)?;
     if chain.cart().is_none() && settings.cart0 != [0.0, 0.0] {
         return Err(Error::input("cart_x0 and cart_v0 need a chain with a cart (Chain(..., cart=Cart(mass)))"));
