@@ -148,8 +148,7 @@ impl PyChain {
         let slot = RefCell::new(None);
         let errors = Errors::default();
         let mut src = crate::torque::torque(py, self.inner.n(), torque.as_deref(), &slot)?;
-        // (A pivot held at the origin is no pivot motion: the ideal chain's routes.)
-        let pivot = base::pivot(py, pivot, &errors)?.filter(|p| !p.is_origin());
+        let pivot = base::pivot(py, pivot, &errors)?;
         let mut force = base::force(py, cart_force, &errors)?;
         let cart_v = cart_v.unwrap_or_default();
         let mut b = rows::Base { pivot: pivot.as_ref(), cart_v: &cart_v, force: force.as_mut() };

@@ -363,7 +363,8 @@ impl Chain {
 
     /// The tangent of [`Chain::accelerations_general`] along `(d_theta, d_omega, d_v)`:
     /// `d theta_ddot` into `out`, and `d x_ddot` returned. `accel` and `x_ddot` are the
-    /// accelerations at the same state; `scratch` holds [`TANGENT_SCRATCH`] N values. O(N).
+    /// accelerations at the same state; `scratch` holds 5 N values (the Hamiltonian tangent
+    /// needs [`TANGENT_SCRATCH`]). O(N). The ideal chain's tangent is this one on a still pivot.
     #[allow(clippy::too_many_arguments)]
     pub fn tangent_general(
         &self,
@@ -390,7 +391,8 @@ impl Chain {
         }
         self.coupled_sums(ws, u, ss, cs);
         for a in 0..n {
-            out[a] = h[a] * (gy * ws.cos[a] - gx * ws.sin[a]) * d_theta[a] - d_theta[a] * cs[a];
+            // (On a still pivot, gx = 0: the ideal chain's -g h cos(th) dth to the bit.)
+            out[a] = (gy * h[a] * ws.cos[a] - gx * h[a] * ws.sin[a]) * d_theta[a] - d_theta[a] * cs[a];
             u[a] = d_theta[a] * omega[a] * omega[a];
         }
         self.coupled_sums(ws, u, ss, cs);
@@ -401,8 +403,13 @@ impl Chain {
         self.coupled_sums(ws, u, s2, c2);
         self.coupled_sums(ws, &accel[..n], ss, cs);
         for a in 0..n {
-            out[a] += -2.0 * s2[a] + d_theta[a] * ss[a] + h[a] * ws.sin[a] * d_theta[a] * x_ddot;
+            out[a] += -2.0 * s2[a] + d_theta[a] * ss[a];
             u[a] = d_theta[a] * accel[a];
+        }
+        if self.cart.is_some() {
+            for a in 0..n {
+                out[a] += h[a] * ws.sin[a] * d_theta[a] * x_ddot;
+            }
         }
         self.coupled_sums(ws, u, ss, cs);
         for a in 0..n {

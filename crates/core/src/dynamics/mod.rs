@@ -256,7 +256,8 @@ impl Chain {
     /// `theta_ddot(theta, omega)` along `(d_theta, d_omega)`, for torques that depend on time only.
     /// Differentiating `A theta_ddot = r` gives `A d_theta_ddot = dr - (dA) theta_ddot`; every term
     /// is a sum of `K_ab sin/cos(theta_a - theta_b)` against a vector, so it costs O(N) like the
-    /// accelerations. `accel` is `theta_ddot` at the same state; `scratch` holds 6N values.
+    /// accelerations. `accel` is `theta_ddot` at the same state; `scratch` holds 5N values. The
+    /// general model's tangent ([`Chain::tangent_general`]) on a still pivot, bit for bit.
     #[allow(clippy::too_many_arguments)]
     pub fn tangent_accelerations_into(
         &self,
@@ -269,43 +270,8 @@ impl Chain {
         scratch: &mut [f64],
         ws: &mut Workspace,
     ) -> Result<(), Singular> {
-        let n = self.n();
-        self.trig(&theta[..n], ws);
-        let (u, rest) = scratch.split_at_mut(n);
-        let (ss, rest) = rest.split_at_mut(n);
-        let (cs, rest) = rest.split_at_mut(n);
-        let (s2, rest) = rest.split_at_mut(n);
-        let (c2, _) = rest.split_at_mut(n);
-        let out = &mut out[..n];
-        // -g h_a cos(th_a) dth_a - dth_a C[w^2]_a + C[dth w^2]_a
-        for a in 0..n {
-            u[a] = omega[a] * omega[a];
-        }
-        self.coupled_sums(ws, u, ss, cs);
-        for a in 0..n {
-            out[a] = -self.g * self.h[a] * ws.cos[a] * d_theta[a] - d_theta[a] * cs[a];
-            u[a] = d_theta[a] * omega[a] * omega[a];
-        }
-        self.coupled_sums(ws, u, ss, cs);
-        // - 2 S[w dw]_a
-        for a in 0..n {
-            out[a] += cs[a];
-            u[a] = omega[a] * d_omega[a];
-        }
-        self.coupled_sums(ws, u, s2, c2);
-        // + dth_a S[accel]_a - S[dth accel]_a
-        self.coupled_sums(ws, &accel[..n], ss, cs);
-        for a in 0..n {
-            out[a] += -2.0 * s2[a] + d_theta[a] * ss[a];
-            u[a] = d_theta[a] * accel[a];
-        }
-        self.coupled_sums(ws, u, ss, cs);
-        for a in 0..n {
-            out[a] -= ss[a];
-        }
-        self.eliminate(ws, out, |_, _, _| 0.0)?;
-        self.substitute(ws, out, |_, _, _, _| {});
-        Ok(())
+        let still = general::Load::still(self);
+        self.tangent_general(theta, omega, (accel, 0.0), &still, (d_theta, d_omega, 0.0), out, scratch, ws).map(drop)
     }
 
     /// `omega = A(theta)^-1 p`. O(N).
