@@ -58,7 +58,7 @@ impl Base<'_> {
     /// Whether the ideal chain's routes apply (nothing moves the base: no pivot, or one held
     /// at the origin).
     pub fn still(&self) -> bool {
-        self.pivot.is_none_or(|p| p.is_origin()) && self.force.is_none() && self.cart_v.iter().all(|&v| v == 0.0)
+        self.pivot.map_or(true, |p| p.is_origin()) && self.force.is_none() && self.cart_v.iter().all(|&v| v == 0.0)
     }
 
     fn check(&self, chain: &Chain, rows: usize) -> Result<()> {
