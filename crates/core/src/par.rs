@@ -27,6 +27,16 @@ mod sequential {
         }
     }
 
+    /// `par_iter_mut()`: `iter_mut()`.
+    pub(crate) trait ParallelSliceMut<T> {
+        fn par_iter_mut(&mut self) -> std::slice::IterMut<'_, T>;
+    }
+    impl<T> ParallelSliceMut<T> for [T] {
+        fn par_iter_mut(&mut self) -> std::slice::IterMut<'_, T> {
+            self.iter_mut()
+        }
+    }
+
     /// `map_init(init, f)`: one state, made once, for the whole sequence.
     pub(crate) trait MapInit: Iterator + Sized {
         fn map_init<S, R>(self, init: impl FnOnce() -> S, mut f: impl FnMut(&mut S, Self::Item) -> R) -> impl Iterator<Item = R> {

@@ -7,9 +7,9 @@ use std::borrow::Borrow;
 
 use serde::{Deserialize, Serialize};
 
-use super::base::{Drive, Motion};
+use super::base::{Drive, Force, Motion};
 use super::general::{Load, TANGENT_SCRATCH};
-use super::torque::TorqueSource;
+use super::torque::{Builtin, TorqueSource};
 use super::Workspace;
 use crate::error::{Error, Result};
 use crate::model::Chain;
@@ -171,6 +171,24 @@ impl<C: Borrow<Chain>, T: TorqueSource> ChainSystem<C, T> {
             return Err(Error::input("the new drive changes what the run's state holds (a moving pivot or a cart force that appears or goes): start a new run"));
         }
         Ok(())
+    }
+
+    /// The torque source, to change between steps (then restart the integrator: a changed
+    /// input invalidates what it carried over, as [`crate::run::Run::set_state`] does).
+    pub fn torque_mut(&mut self) -> &mut T {
+        &mut self.torque
+    }
+
+    /// Hold the cart force at `f` from now on, in place (an environment's action over one
+    /// step); the drive must already be a constant force. Restart the integrator after it.
+    pub fn hold_force(&mut self, f: f64) -> Result<()> {
+        match &mut self.drive.force {
+            Some(Force::Builtin(Builtin::Constant(v))) if v.len() == 1 => {
+                v[0] = f;
+                Ok(())
+            }
+            _ => Err(Error::input("hold_force needs a run started with a constant cart force")),
+        }
     }
 
     fn arrange(&mut self) {

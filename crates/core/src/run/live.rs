@@ -7,12 +7,14 @@
 use super::driver::Run;
 use super::energy::EnergyBalance;
 use super::simulate::{fill_rates, initial_state, Books, Settings, Terms};
+use crate::dynamics::base::Force;
 use crate::dynamics::system::{ChainSystem, Form};
-use crate::dynamics::torque::TorqueSource;
+use crate::dynamics::torque::{Builtin, Joint, TorqueSource};
 use crate::dynamics::Workspace;
-use crate::error::{Error, Result};
+use crate::error::{check_finite, Error, Result};
 use crate::integrators::Method;
 use crate::model::Chain;
+use crate::par::*;
 
 /// A chain, its current state and its integrator, advanced on request.
 pub struct Stepper<T> {
@@ -150,6 +152,170 @@ impl<T: TorqueSource> Stepper<T> {
     pub fn failure(&self) -> Option<&Error> {
         self.run.failure()
     }
+
+    /// The torque source, to change between steps; call [`Stepper::restart`] after.
+    pub fn torque_mut(&mut self) -> &mut T {
+        self.run.system_mut().torque_mut()
+    }
+
+    /// Hold the cart force at `f` (a run started with a constant cart force); call
+    /// [`Stepper::restart`] after.
+    pub fn hold_force(&mut self, f: f64) -> Result<()> {
+        self.run.system_mut().hold_force(f)
+    }
+
+    /// Restart the integrator from the current state after its inputs changed (what it carried
+    /// from the last step, such as dop853's last derivative, belonged to the old inputs).
+    pub fn restart(&mut self) -> Result<()> {
+        let y = self.run.y().to_vec();
+        self.run.set_state(&y)
+    }
+}
+
+/// Copies of one chain advanced together, each with its inputs held constant over a call (an
+/// environment's zero-order hold): joint-motor torques `u` (the motor at joint i turns link i
+/// and pushes back on link i-1, see [`Joint`]) and, with a cart, the force on the cart. Each
+/// copy is a [`Stepper`] of its own, with its own energy balance; the copies run in parallel,
+/// and each one's arithmetic is the same whatever the number of threads.
+pub struct Steppers {
+    items: Vec<Stepper<Joint<Builtin>>>,
+    settings: Settings,
+}
+
+impl Steppers {
+    /// `count` copies of `chain`, hanging at rest until [`Steppers::reset`]. `settings` as for
+    /// [`Stepper::new`]; its drive must be empty (the cart force is the one held here).
+    pub fn new(chain: &Chain, count: usize, settings: &Settings) -> Result<Self> {
+        if count == 0 {
+            return Err(Error::input("count must be >= 1, got 0"));
+        }
+        if settings.drive.pivot.is_some() || settings.drive.force.is_some() {
+            return Err(Error::input("steppers hold their own cart force and take no pivot motion"));
+        }
+        let mut settings = settings.clone();
+        if chain.cart().is_some() {
+            settings.drive.force = Some(Force::Builtin(Builtin::Constant(vec![0.0])));
+        }
+        settings.cart0 = [0.0; 2];
+        let rest = vec![0.0; chain.n()];
+        let items = (0..count)
+            .map(|_| Stepper::new(chain.clone(), &rest, &rest, &settings, Joint(Builtin::Constant(rest.clone()))))
+            .collect::<Result<Vec<_>>>()?;
+        Ok(Steppers { items, settings })
+    }
+
+    pub fn len(&self) -> usize {
+        self.items.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.items.is_empty()
+    }
+
+    pub fn chain(&self) -> &Chain {
+        self.items[0].chain()
+    }
+
+    /// Values per copy in [`Steppers::states_into`]: `theta`, `omega`, then the cart's `x, v`.
+    pub fn state_len(&self) -> usize {
+        2 * self.chain().n() + 2 * usize::from(self.chain().cart().is_some())
+    }
+
+    /// Start copy `i` anew at t = 0 from `(theta0, omega0)` and the cart's `(x, v)`: a new
+    /// episode, its energy balance and works from zero.
+    pub fn reset(&mut self, i: usize, theta0: &[f64], omega0: &[f64], cart0: [f64; 2]) -> Result<()> {
+        let count = self.items.len();
+        if i >= count {
+            return Err(Error::input(format!("index {i} out of range for {count} copies")));
+        }
+        let mut settings = self.settings.clone();
+        settings.cart0 = cart0;
+        let chain = self.items[i].chain().clone();
+        let zero = vec![0.0; chain.n()];
+        self.items[i] = Stepper::new(chain, theta0, omega0, &settings, Joint(Builtin::Constant(zero)))?;
+        Ok(())
+    }
+
+    /// Hold joint torques `torques` (count x N, row-major; zero on joints without a motor) and,
+    /// with a cart, forces `forces` (count values; empty without one), then advance every copy
+    /// by `span` (the fixed-step methods: the whole steps of their grid up to `t + span`, so
+    /// `span = k dt` is exactly k steps; dop853 lands on `t + span`). An input that is not
+    /// finite is refused before any copy moves. `active`: which copies move (one flag per copy;
+    /// empty: all), the others keep their state and ignore their inputs. The first copy (by
+    /// index) that fails names itself in the error; it stays failed until reset, the others
+    /// have taken their steps.
+    pub fn step(&mut self, torques: &[f64], forces: &[f64], span: f64, active: &[bool]) -> Result<()> {
+        if !(span.is_finite() && span > 0.0) {
+            return Err(Error::input(format!("span must be > 0 and finite, got {span}")));
+        }
+        let (count, n) = (self.items.len(), self.chain().n());
+        let want_forces = if self.chain().cart().is_some() { count } else { 0 };
+        if torques.len() != count * n {
+            return Err(Error::input(format!("torques must have count x N = {} values, got {}", count * n, torques.len())));
+        }
+        if forces.len() != want_forces {
+            return Err(Error::input(format!("forces must have {want_forces} values (one per copy with a cart), got {}", forces.len())));
+        }
+        if !active.is_empty() && active.len() != count {
+            return Err(Error::input(format!("active must have {count} flags (one per copy) or none, got {}", active.len())));
+        }
+        check_finite("torques", torques)?;
+        check_finite("forces", forces)?;
+        let one = |(i, (st, u)): (usize, (&mut Stepper<Joint<Builtin>>, &[f64]))| -> Option<(usize, Error)> {
+            if active.get(i) == Some(&false) {
+                return None;
+            }
+            let r = (|| {
+                if let Builtin::Constant(held) = &mut st.torque_mut().0 {
+                    held.copy_from_slice(u);
+                }
+                if let Some(&f) = forces.get(i) {
+                    st.hold_force(f)?;
+                }
+                st.restart()?;
+                let target = st.t() + span;
+                st.advance(target, u64::MAX).map(drop)
+            })();
+            r.err().map(|e| (i, e))
+        };
+        // One copy runs here: a pool's hand-over would cost more than its step.
+        let failed = if count == 1 {
+            one((0, (&mut self.items[0], torques)))
+        } else {
+            self.items.par_iter_mut().zip(torques.par_chunks(n)).enumerate().filter_map(one).min_by_key(|(i, _)| *i)
+        };
+        match failed {
+            None => Ok(()),
+            Some((i, Error::Integration { t, reason })) => Err(Error::integration(t, format!("copy {i}: {reason}"))),
+            Some((i, Error::Input(m))) => Err(Error::input(format!("copy {i}: {m}"))),
+            Some((_, e)) => Err(e),
+        }
+    }
+
+    /// Every copy's state, count x [`Steppers::state_len`] values.
+    pub fn states_into(&mut self, out: &mut [f64]) {
+        let k = self.state_len();
+        for (st, row) in self.items.iter_mut().zip(out.chunks_mut(k)) {
+            let n = st.n();
+            row[..n].copy_from_slice(st.theta());
+            row[n..2 * n].copy_from_slice(st.omega());
+            if k > 2 * n {
+                let (x, v) = st.cart();
+                row[2 * n] = x;
+                row[2 * n + 1] = v;
+            }
+        }
+    }
+
+    /// Every copy's time, energy (lab frame) and energy-balance residual ([`Stepper::energy_error`]),
+    /// count x 3 values.
+    pub fn balance_into(&mut self, out: &mut [f64]) {
+        for (st, row) in self.items.iter_mut().zip(out.chunks_mut(3)) {
+            row[0] = st.t();
+            row[1] = st.energy();
+            row[2] = st.energy_error();
+        }
+    }
 }
 
 #[cfg(test)]
@@ -246,6 +412,64 @@ mod tests {
         assert_eq!(e.to_string(), "theta0[0] must be finite, got NaN");
         let mut st = Stepper::new(double(), &[1.0, 0.0], &[0.0; 2], &settings("rk4", Some(0.01)), Builtin::None).unwrap();
         assert!(st.advance(f64::NAN, 1).is_err());
+    }
+
+    #[test]
+    fn steppers_are_steppers_held_constant_and_independent_of_the_batch() {
+        // Each copy of a batch is the single stepper with the same constant joint torque, bit
+        // for bit, whatever the other copies do; a masked copy does not move.
+        let chain = Chain::rods(&[1.0, 0.7], &[1.0, 0.5], 9.81).unwrap();
+        let s = settings("rk4", Some(0.01));
+        let mut batch = Steppers::new(&chain, 3, &s).unwrap();
+        let starts = [([0.3, -0.2], [0.1, 0.0]), ([2.0, 2.5], [0.0, 1.0]), ([0.0, 0.1], [0.0, 0.0])];
+        for (i, (th, om)) in starts.iter().enumerate() {
+            batch.reset(i, th, om, [0.0; 2]).unwrap();
+        }
+        let u = [0.0, 0.4, 1.0, -1.0, 0.0, 0.0];
+        batch.step(&u, &[], 0.2, &[]).unwrap();
+        batch.step(&u, &[], 0.2, &[true, false, true]).unwrap();
+        let mut out = vec![0.0; 3 * batch.state_len()];
+        batch.states_into(&mut out);
+        for (i, (th, om)) in starts.iter().enumerate() {
+            let mut one = Stepper::new(chain.clone(), th, om, &s, Joint(Builtin::Constant(u[2 * i..2 * i + 2].to_vec()))).unwrap();
+            let span = if i == 1 { 0.2 } else { 0.4 };
+            one.advance(span, u64::MAX).unwrap();
+            assert_eq!(one.counts().0, (span / 0.01).round() as u64, "whole steps of the grid");
+            assert_eq!(&out[4 * i..4 * i + 2], one.theta(), "copy {i}");
+            assert_eq!(&out[4 * i + 2..4 * i + 4], one.omega(), "copy {i}");
+        }
+        let mut bal = vec![0.0; 9];
+        batch.balance_into(&mut bal);
+        assert_eq!(bal[3], 0.2, "the masked copy stayed at t = 0.2");
+        assert!(bal[2] < 1e-7 && bal[8] < 1e-7, "the torque's work closes the balance: {bal:?}");
+    }
+
+    #[test]
+    fn steppers_hold_the_cart_force_and_refuse_bad_inputs() {
+        let chain = Chain::rods(&[1.0], &[0.1], 9.8).unwrap().with_cart(Some(crate::model::Cart::new(1.0, 0.0).unwrap())).unwrap();
+        let s = settings("rk4", Some(0.005));
+        let mut batch = Steppers::new(&chain, 2, &s).unwrap();
+        assert_eq!(batch.state_len(), 4);
+        batch.reset(1, &[3.0], &[0.0], [0.5, 0.0]).unwrap();
+        batch.step(&[0.0, 0.0], &[2.0, -1.0], 0.1, &[]).unwrap();
+        let mut out = vec![0.0; 8];
+        batch.states_into(&mut out);
+        // A rod hanging at rest, its cart pushed by F: at first x_ddot = F / (M + m / 4) (the
+        // rod turns about its centre of percussion), so x = F t^2 / (2 (M + m / 4)) over 0.1 s.
+        assert!((out[2] - 2.0 * 0.01 / 2.0 / 1.025).abs() < 2e-5, "{out:?}");
+        assert!(out[6] < 0.5, "the second cart pushed back: {out:?}");
+        let mut bal = vec![0.0; 6];
+        batch.balance_into(&mut bal);
+        assert!(bal[2] < 1e-9 && bal[5] < 1e-9, "{bal:?}");
+        let e = batch.step(&[0.0, f64::NAN], &[0.0, 0.0], 0.1, &[]).unwrap_err();
+        assert_eq!(e.to_string(), "torques[1] must be finite, got NaN");
+        let e = batch.step(&[0.0, 0.0], &[], 0.1, &[]).unwrap_err();
+        assert_eq!(e.to_string(), "forces must have 2 values (one per copy with a cart), got 0");
+        let e = batch.step(&[0.0, 0.0], &[0.0, 0.0], 0.0, &[]).unwrap_err();
+        assert_eq!(e.to_string(), "span must be > 0 and finite, got 0");
+        let e = batch.reset(2, &[0.0], &[0.0], [0.0; 2]).unwrap_err();
+        assert_eq!(e.to_string(), "index 2 out of range for 2 copies");
+        assert_eq!(Steppers::new(&chain, 0, &s).err().unwrap().to_string(), "count must be >= 1, got 0");
     }
 
     #[test]
