@@ -3,6 +3,7 @@
 //! - [`chain`]: the `Chain` class (mass matrix, accelerations, energies, the Jacobian);
 //! - [`torque`]: torques from the Python layer's specs, and Python torque functions;
 //! - [`run`]: `simulate` (single runs, batches, events, checkpoints);
+//! - [`stepper`]: `Steppers`, copies of a chain stepped with held inputs (the environments');
 //! - [`chaos`]: Lyapunov exponents and flip times;
 //! - [`facts`]: the core's methods, defaults and limits, published as they are.
 //!
@@ -26,6 +27,7 @@ mod chain;
 mod chaos;
 mod facts;
 mod run;
+mod stepper;
 mod torque;
 
 create_exception!(multipendulum, InputError, PyValueError, "Bad input: the message names the field, the index, the value and what was expected.");
@@ -100,6 +102,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     base::register(m)?;
     chain::register(m)?;
     run::register(m)?;
+    stepper::register(m)?;
     chaos::register(m)?;
     facts::register(m)?;
     Ok(())

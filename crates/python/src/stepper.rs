@@ -1,0 +1,89 @@
+//! `Steppers`: copies of one chain advanced together with their inputs held over each call (the
+//! environments' engine, [`core::Steppers`]). Arrays cross flat; the GIL is released while the
+//! copies step.
+use multipendulum_core as core;
+use numpy::{PyArray1, PyReadonlyArray1};
+use pyo3::prelude::*;
+
+use core::{Form, Method, Settings};
+
+use crate::chain::PyChain;
+use crate::{slice, to_py, InputError};
+
+pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<PySteppers>()
+}
+
+#[pyclass(module = "multipendulum._core", name = "Steppers")]
+pub(crate) struct PySteppers {
+    inner: core::Steppers,
+}
+
+#[pymethods]
+impl PySteppers {
+    /// `count` copies of `chain`, hanging at rest until `reset`.
+    #[new]
+    #[pyo3(signature = (chain, count, *, method, rtol, atol, max_steps, dt=None, form=None))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(py: Python<'_>, chain: &PyChain, count: usize, method: &str, rtol: f64, atol: f64, max_steps: u64, dt: Option<f64>, form: Option<&str>) -> PyResult<Self> {
+        let err = |e| to_py(py, e);
+        let settings = Settings {
+            method: Method::parse(method).map_err(err)?,
+            form: form.map(Form::parse).transpose().map_err(err)?,
+            dt,
+            rtol,
+            atol,
+            max_steps,
+            ..Settings::default()
+        };
+        let inner = core::Steppers::new(&chain.inner, count, &settings).map_err(err)?;
+        Ok(PySteppers { inner })
+    }
+
+    #[getter]
+    fn count(&self) -> usize {
+        self.inner.len()
+    }
+
+    /// Values per copy in `states()`: theta (N), omega (N), then the cart's x, v.
+    #[getter]
+    fn state_len(&self) -> usize {
+        self.inner.state_len()
+    }
+
+    /// Start copy `index` anew at t = 0 (a new episode).
+    #[pyo3(signature = (index, theta0, omega0, cart0=(0.0, 0.0)))]
+    fn reset(&mut self, py: Python<'_>, index: usize, theta0: PyReadonlyArray1<'_, f64>, omega0: PyReadonlyArray1<'_, f64>, cart0: (f64, f64)) -> PyResult<()> {
+        let (theta0, omega0) = (slice("theta0", &theta0)?, slice("omega0", &omega0)?);
+        self.inner.reset(index, theta0, omega0, [cart0.0, cart0.1]).map_err(|e| to_py(py, e))
+    }
+
+    /// Hold joint torques (count x N, flat) and cart forces (count, or empty without a cart),
+    /// then advance every copy by `span` (whole steps of a fixed-step method's grid), without
+    /// the GIL.
+    /// `active`: one flag per copy, the copies that move (None: all).
+    #[pyo3(signature = (torques, forces, span, active=None))]
+    fn step(&mut self, py: Python<'_>, torques: PyReadonlyArray1<'_, f64>, forces: PyReadonlyArray1<'_, f64>, span: f64, active: Option<PyReadonlyArray1<'_, bool>>) -> PyResult<()> {
+        let (torques, forces) = (slice("torques", &torques)?, slice("forces", &forces)?);
+        let active = match &active {
+            Some(a) => a.as_slice().map_err(|_| InputError::new_err("active must be a C-contiguous bool array"))?,
+            None => &[],
+        };
+        let inner = &mut self.inner;
+        py.detach(|| inner.step(torques, forces, span, active)).map_err(|e| to_py(py, e))
+    }
+
+    /// Every copy's state, count x state_len values (flat).
+    fn states<'py>(&mut self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        let mut out = vec![0.0; self.inner.len() * self.inner.state_len()];
+        self.inner.states_into(&mut out);
+        PyArray1::from_vec(py, out)
+    }
+
+    /// Every copy's time, energy (lab frame) and energy-balance residual, count x 3 (flat).
+    fn balance<'py>(&mut self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        let mut out = vec![0.0; self.inner.len() * 3];
+        self.inner.balance_into(&mut out);
+        PyArray1::from_vec(py, out)
+    }
+}
