@@ -194,9 +194,11 @@ class _Painter:
         self.canvas.draw()
         self.background = self.canvas.copy_from_bbox(self.fig.bbox)
 
-    def frame(self, k: int, t: float, joints: np.ndarray, trail: float, base=(0.0, 0.0)) -> np.ndarray:
+    def frame(self, k: int, t: float, joints: np.ndarray, trail: float, base=(0.0, 0.0),
+              err: Optional[float] = None) -> np.ndarray:
         """Draw the chain at time t and return the frame as an (H, W, 3) uint8 array.
-        ``joints`` (N, 2) and ``base`` (2,), the pivot (on a cart, the cart's centre), in the lab frame."""
+        ``joints`` (N, 2) and ``base`` (2,), the pivot (on a cart, the cart's centre), in the lab frame;
+        ``err``: the energy error shown (None: the view's, at t)."""
         view = self.view
         base = np.asarray(base, dtype=float).reshape(2)
         chain = np.vstack([base, joints])
@@ -212,7 +214,8 @@ class _Painter:
         self.trail.set_segments(self._trail_segments(t, joints[-1], trail))
         self.trail.set_color(self._trail_colors)
         self.time_text.set_text(f"t = {t:7.2f} s")
-        err = float(np.interp(t, view.t, view.energy_error))
+        if err is None:
+            err = float(np.interp(t, view.t, view.energy_error))
         self.err_text.set_text(f"energy error {err:8.1e}")
         self.canvas.restore_region(self.background)
         for artist in self.moving:  # in zorder: cart, trail, rods, bobs, pivot, labels

@@ -1,0 +1,266 @@
+"""One environment (``gymnasium.Env``) and a vector of them (``gymnasium.vector.VectorEnv``)
+over a :mod:`~multipendulum.envs.tasks` task. Both step their chains through the core's
+``Steppers`` (one copy, or B copies in one call), so a vector's sub-environment is, bit for bit,
+the single environment with the same seed."""
+from __future__ import annotations
+
+from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
+
+import gymnasium as gym
+import numpy as np
+import numpy.typing as npt
+from gymnasium.utils import seeding
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from ..errors import InputError
+from ._engine import Array, Engine, count
+from ._render import Renderer
+from .tasks import Task
+
+Info = Dict[str, Any]
+
+
+def _info(balance: Array) -> Info:
+    """What each step and reset reports of the integration: the time, the energy and the relative
+    residual of the energy balance ``E - E0 - W`` (work of the inputs, dissipation)."""
+    return {"t": float(balance[0]), "energy": float(balance[1]), "energy_error": float(balance[2])}
+
+
+class PendulumEnv(gym.Env[Any, Any]):
+    """A single environment over ``task``. See :mod:`multipendulum.envs` for the ids."""
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 30}
+
+    def __init__(self, task: Task, render_mode: Optional[str] = None) -> None:
+        self.task = task
+        self.action_space = task.single_action_space
+        self.observation_space = task.single_observation_space
+        self.metadata = {**self.metadata, "render_fps": max(1, round(1 / task.dt))}
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise InputError(f"render_mode must be one of {', '.join(self.metadata['render_modes'])} or None, got {render_mode!r}")
+        self.render_mode = render_mode
+        self._engine = Engine(task.chain, 1, task.dt, task.substeps, task.method)
+        self._states: Optional[Array] = None
+        self._terminated = False
+        self._warned = False
+        self._renderer: Optional[Renderer] = None
+
+    @property
+    def state(self) -> Array:
+        """The current state, ``(theta (N), omega (N))``; with a cart ``(x, theta, v, omega)``."""
+        if self._states is None:
+            raise gym.error.ResetNeeded("call reset() before reading the state")
+        return self.task.public_state(self._states)[0]
+
+    def reset(self, *, seed: Optional[int] = None, options: Optional[Dict[str, Any]] = None) -> Tuple[Array, Info]:
+        """``options``: ``{"low": .., "high": ..}`` (the uniform start's bounds), or
+        ``{"state": s}``, an exact start in :attr:`state`'s form."""
+        super().reset(seed=seed)
+        if options is not None and "state" in options:
+            theta, omega, cart = self.task.core_state(options["state"])
+        else:
+            low, high = self.task.reset_bounds(options)
+            row = self.task.initial(self.np_random, low, high)
+            theta, omega, cart = self._split(row)
+        self._engine.reset(0, theta, omega, cart)
+        self._states = self._engine.states()
+        self._terminated, self._warned = False, False
+        obs = self.task.observe(self._states)[0]
+        if self.render_mode == "human":
+            self.render()
+        return obs, _info(self._engine.balance()[0])
+
+    def _split(self, row: Array) -> Tuple[Array, Array, Tuple[float, float]]:
+        n = self.task.n
+        cart = (float(row[2 * n]), float(row[2 * n + 1])) if self.task.cart else (0.0, 0.0)
+        return row[:n], row[n:2 * n], cart
+
+    def step(self, action: Any) -> Tuple[Array, float, bool, bool, Info]:
+        if self._states is None:
+            raise gym.error.ResetNeeded("call reset() before step()")
+        torques, forces = self.task.inputs(action, ())
+        self._engine.step(torques[None], None if forces is None else forces.reshape(1))
+        self._states = self._engine.states()
+        reward, terminated = self.task.outcome(self._states)
+        r = float(reward[0])
+        if self._terminated:
+            # As gymnasium's CartPole: stepping on after the end says so, once, and earns nothing.
+            if not self._warned:
+                gym.logger.warn("step() called after the episode terminated; call reset() first "
+                                "(further steps earn reward 0)")
+                self._warned = True
+            r = 0.0
+        self._terminated = self._terminated or bool(terminated[0])
+        if self.render_mode == "human":
+            self.render()
+        return self.task.observe(self._states)[0], r, bool(terminated[0]), False, _info(self._engine.balance()[0])
+
+    def render(self) -> Optional[npt.NDArray[np.uint8]]:
+        if self.render_mode is None:
+            gym.logger.warn("render() without a render_mode: give gym.make(..., render_mode='rgb_array')")
+            return None
+        if self._states is None:
+            raise gym.error.ResetNeeded("call reset() before render()")
+        if self._renderer is None:
+            self._renderer = Renderer(self.task, self.metadata["render_fps"])
+        balance = self._engine.balance()[0]
+        frame = self._renderer.frame(self._states[0], balance[0], balance[2])
+        if self.render_mode == "human":
+            self._renderer.show(frame)
+            return None
+        return frame
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+
+def _seeds(seed: Union[None, int, Sequence[Optional[int]]], num: int) -> List[Optional[int]]:
+    """As gymnasium's SyncVectorEnv: None for all, ``seed + i``, or one per environment."""
+    if seed is None:
+        return [None] * num
+    if isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
+        return [int(seed) + i for i in range(num)]
+    seeds: List[Optional[int]] = list(seed)  # type: ignore[arg-type]
+    if len(seeds) != num:
+        raise InputError(f"seed must be None, an int or {num} seeds (one per environment), got {len(seeds)}")
+    return seeds
+
+
+class PendulumVectorEnv(VectorEnv[Any, Any, Any]):
+    """``num_envs`` environments over one task, stepped in one call into the core (parallel across
+    cores, the GIL released). Sub-environment i is seeded as gymnasium's SyncVectorEnv seeds it
+    (``seed + i``) and has its own random generator, so it follows the single environment with
+    that seed exactly. ``autoreset_mode``: gymnasium's (default next-step)."""
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 30, "autoreset_mode": AutoresetMode.NEXT_STEP}
+
+    def __init__(self, task: Task, num_envs: int = 1, max_episode_steps: Optional[int] = None,
+                 render_mode: Optional[str] = None,
+                 autoreset_mode: Union[str, AutoresetMode] = AutoresetMode.NEXT_STEP) -> None:
+        self.task = task
+        self.num_envs = count(num_envs, "num_envs")
+        self.max_episode_steps = None if max_episode_steps is None else count(max_episode_steps, "max_episode_steps")
+        try:
+            mode = AutoresetMode(autoreset_mode)
+        except ValueError:
+            raise InputError(f"autoreset_mode must be one of {', '.join(m.value for m in AutoresetMode)}, "
+                             f"got {autoreset_mode!r}") from None
+        self.autoreset_mode = mode
+        self.metadata = {**self.metadata, "autoreset_mode": mode, "render_fps": max(1, round(1 / task.dt))}
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise InputError(f"render_mode must be one of {', '.join(self.metadata['render_modes'])} or None, got {render_mode!r}")
+        self.render_mode = render_mode
+        self.single_action_space = task.single_action_space
+        self.single_observation_space = task.single_observation_space
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self._engine = Engine(task.chain, self.num_envs, task.dt, task.substeps, task.method)
+        self._rngs: List[np.random.Generator] = [seeding.np_random(None)[0] for _ in range(self.num_envs)]
+        self._states: Optional[Array] = None
+        self._steps = np.zeros(self.num_envs, dtype=np.int64)
+        self._done = np.zeros(self.num_envs, dtype=np.bool_)
+        self._renderer: Optional[Renderer] = None
+
+    @property
+    def state(self) -> Array:
+        """(num_envs, ...): each environment's state in the single environment's form."""
+        if self._states is None:
+            raise gym.error.ResetNeeded("call reset() before reading the state")
+        return self.task.public_state(self._states)
+
+    def _start(self, i: int, options: Optional[Dict[str, Any]]) -> None:
+        if options is not None and "state" in options:
+            theta, omega, cart = self.task.core_state(np.asarray(options["state"])[i])
+        else:
+            low, high = self.task.reset_bounds(options)
+            row = self.task.initial(self._rngs[i], low, high)
+            n = self.task.n
+            theta, omega = row[:n], row[n:2 * n]
+            cart = (float(row[2 * n]), float(row[2 * n + 1])) if self.task.cart else (0.0, 0.0)
+        self._engine.reset(i, theta, omega, cart)
+        self._steps[i] = 0
+
+    def reset(self, *, seed: Union[None, int, Sequence[Optional[int]]] = None,
+              options: Optional[Dict[str, Any]] = None) -> Tuple[Array, Info]:
+        """``options``: as the single environment's, plus gymnasium's ``reset_mask`` (reset only
+        these environments, for ``autoreset_mode="Disabled"``); ``"state"`` then has one row per
+        environment."""
+        seeds = _seeds(seed, self.num_envs)
+        options = dict(options) if options is not None else None
+        mask = np.ones(self.num_envs, dtype=np.bool_)
+        if options is not None and "reset_mask" in options:
+            mask = np.asarray(options.pop("reset_mask"))
+            if mask.shape != (self.num_envs,) or mask.dtype != np.bool_ or not mask.any():
+                raise InputError(f"options['reset_mask'] must be a bool array of shape ({self.num_envs},) "
+                                 f"with at least one True, got {mask!r}")
+        for i in np.flatnonzero(mask):
+            if seeds[i] is not None or self._states is None:
+                self._rngs[i] = seeding.np_random(seeds[i])[0]
+            self._start(int(i), options)
+        self._done[mask] = False
+        self._states = self._engine.states()
+        return self.task.observe(self._states), self._infos(self._engine.balance(), mask)
+
+    def _infos(self, balance: Array, mask: npt.NDArray[np.bool_]) -> Info:
+        info: Info = {}
+        for k, key in enumerate(("t", "energy", "energy_error")):
+            info[key] = np.where(mask, balance[:, k], 0.0)
+            info["_" + key] = mask.copy()
+        return info
+
+    def step(self, actions: Any) -> Tuple[Array, Array, npt.NDArray[np.bool_], npt.NDArray[np.bool_], Info]:
+        if self._states is None:
+            raise gym.error.ResetNeeded("call reset() before step()")
+        torques, forces = self.task.inputs(actions, (self.num_envs,))
+        mode = self.autoreset_mode
+        restart = self._done.copy() if mode == AutoresetMode.NEXT_STEP else np.zeros(self.num_envs, dtype=np.bool_)
+        if mode == AutoresetMode.DISABLED and self._done.any():
+            raise InputError("autoreset_mode='Disabled': reset the environments that ended "
+                             f"(indices {np.flatnonzero(self._done).tolist()}) with reset(options={{'reset_mask': ...}})")
+        for i in np.flatnonzero(restart):
+            self._start(int(i), None)
+        self._engine.step(torques, forces, ~restart)
+        self._steps[~restart] += 1
+        self._states = self._engine.states()
+        balance = self._engine.balance()
+        reward, terminated = self.task.outcome(self._states)
+        truncated = (self._steps >= self.max_episode_steps) if self.max_episode_steps is not None \
+            else np.zeros(self.num_envs, dtype=np.bool_)
+        reward[restart], terminated[restart], truncated[restart] = 0.0, False, False
+        obs = self.task.observe(self._states)
+        everyone = np.ones(self.num_envs, dtype=np.bool_)
+        info = self._infos(balance, everyone)
+        done = terminated | truncated
+        if mode == AutoresetMode.SAME_STEP and done.any():
+            final_obs = np.full(self.num_envs, None, dtype=object)
+            for i in np.flatnonzero(done):
+                final_obs[i] = obs[i].copy()
+            info["final_obs"], info["_final_obs"] = final_obs, done.copy()
+            info["final_info"], info["_final_info"] = self._infos(balance, done), done.copy()
+            for i in np.flatnonzero(done):
+                self._start(int(i), None)
+            self._states = self._engine.states()
+            obs = self.task.observe(self._states)
+            info.update(self._infos(self._engine.balance(), everyone))
+            done = np.zeros(self.num_envs, dtype=np.bool_)
+        self._done = done
+        return obs, reward, terminated, truncated, info
+
+    def render(self) -> Optional[Tuple[npt.NDArray[np.uint8], ...]]:
+        if self.render_mode is None:
+            gym.logger.warn("render() without a render_mode: give gym.make_vec(..., render_mode='rgb_array')")
+            return None
+        if self._states is None:
+            raise gym.error.ResetNeeded("call reset() before render()")
+        if self._renderer is None:
+            self._renderer = Renderer(self.task, self.metadata["render_fps"])
+        balance = self._engine.balance()
+        return tuple(self._renderer.frame(s, b[0], b[2]) for s, b in zip(self._states, balance))
+
+    def close_extras(self, **kwargs: Any) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None

@@ -1,0 +1,292 @@
+"""What each environment asks of its chain: the action space and how actions become joint
+torques or a cart force, the observation, the reward and the end of an episode, and the start.
+Every function works on a batch (leading axis B), so one environment and a vector of them share
+the same arithmetic. Angles are the package's: absolute, from the downward vertical,
+counter-clockwise positive (upright is ``theta = pi``)."""
+from __future__ import annotations
+
+import math
+from typing import Any, Dict, Optional, Sequence, Tuple
+
+import numpy as np
+import numpy.typing as npt
+from gymnasium import spaces
+from gymnasium.envs.classic_control import utils
+
+from .._chain import Cart, Chain
+from ..errors import InputError
+from ._engine import Array, build_chain, count, per_link, positive, refuse_unknown, stepping
+
+#: Discrete actions of the acrobot, as gymnasium's Acrobot-v1: torque -max, 0, +max.
+DISCRETE_LEVELS = (-1.0, 0.0, 1.0)
+
+
+def _wrap(a: Array) -> Array:
+    """Angles into [-pi, pi)."""
+    return (a + np.pi) % (2 * np.pi) - np.pi
+
+
+def _numbers(action: object, what: str) -> np.ndarray:
+    try:
+        a = np.asarray(action)
+    except (TypeError, ValueError) as e:
+        raise InputError(f"{what} must be an array of numbers, got {action!r}: {e}") from None
+    if a.dtype.kind not in "biuf":
+        raise InputError(f"{what} must be numbers, got dtype {a.dtype} ({action!r})")
+    return a
+
+
+class Task:
+    """The common part: a chain, its stepping, and the batched action check."""
+
+    name = ""
+    chain: Chain
+    dt: float
+    substeps: int
+    method: str
+    single_action_space: spaces.Space[Any]
+    single_observation_space: spaces.Box
+    low: float
+    high: float
+
+    def __init__(self) -> None:
+        self.n = 0
+        self.discrete = False
+        self.scale: Array = np.zeros(0)
+
+    @property
+    def cart(self) -> bool:
+        return self.chain.cart is not None
+
+    def _continuous(self, actions: object, batch: Tuple[int, ...]) -> Array:
+        """Box(-1, 1) actions -> physical values: out-of-range values are clipped (as
+        gymnasium's Pendulum and MountainCarContinuous do), NaN and inf refused."""
+        shape = batch + tuple(self.single_action_space.shape or ())
+        a = _numbers(actions, "action").astype(np.float64)
+        if a.shape != shape:
+            if a.size == int(np.prod(shape)) and batch == () and a.ndim <= 1:
+                a = a.reshape(shape)  # a bare number for a one-value action
+            else:
+                raise InputError(f"action must have shape {shape}, got {a.shape}")
+        bad = ~np.isfinite(a)
+        if bad.any():
+            where = tuple(int(i) for i in np.argwhere(bad)[0])
+            raise InputError(f"action must be finite, got {a[where]} at index {where}")
+        return np.clip(a, -1.0, 1.0) * self.scale
+
+    def _discrete(self, actions: object, batch: Tuple[int, ...], k: int) -> Array:
+        """Discrete(3) (one motor) or MultiDiscrete([3] * k) -> torques -max, 0, +max."""
+        shape = batch + ((k,) if k > 1 else ())
+        a = _numbers(actions, "action")
+        if a.shape != shape:
+            raise InputError(f"action must have shape {shape}, got {a.shape}")
+        if a.dtype.kind == "f":
+            if not np.all(np.isfinite(a)) or np.any(a != np.round(a)):
+                raise InputError(f"a discrete action must be an integer 0, 1 or 2, got {actions!r}")
+        if np.any((a < 0) | (a > 2)):
+            raise InputError(f"a discrete action must be 0, 1 or 2, got {actions!r}")
+        levels = np.asarray(DISCRETE_LEVELS)[a.astype(np.intp)]
+        return levels.reshape(batch + (k,)) * self.scale
+
+    def reset_bounds(self, options: Optional[Dict[str, Any]]) -> Tuple[float, float]:
+        """``options={"low": .., "high": ..}`` as gymnasium's classic-control environments take."""
+        low, high = utils.maybe_parse_reset_bounds(options, self.low, self.high)
+        return float(low), float(high)
+
+    # -- each task's own --------------------------------------------------------------------
+    def inputs(self, actions: object, batch: Tuple[int, ...]) -> Tuple[Array, Optional[Array]]:
+        """-> joint torques (B, N) and cart forces (B,) or None."""
+        raise NotImplementedError
+
+    def initial(self, rng: np.random.Generator, low: float, high: float) -> Array:
+        """One start, a core state row ``(theta, omega, [x, v])``."""
+        raise NotImplementedError
+
+    def observe(self, states: Array) -> Array:
+        raise NotImplementedError
+
+    def outcome(self, states: Array) -> Tuple[Array, npt.NDArray[np.bool_]]:
+        """-> reward (B,), terminated (B,)."""
+        raise NotImplementedError
+
+    def public_state(self, states: Array) -> Array:
+        """The state as the environment shows it (``env.state``)."""
+        return states.copy()
+
+    def core_state(self, state: object) -> Tuple[Array, Array, Tuple[float, float]]:
+        """``env.state``'s form -> (theta, omega, (x, v)), checked."""
+        n = self.n
+        s = _numbers(state, "state").astype(np.float64).ravel()
+        want = 2 * n + 2 * self.cart
+        if s.size != want or not np.all(np.isfinite(s)):
+            raise InputError(f"state must be {want} finite numbers, got {state!r}")
+        return s[:n], s[n:2 * n], (0.0, 0.0)
+
+
+def _joint_set(actuated: object, n: int) -> Tuple[int, ...]:
+    if isinstance(actuated, str):
+        named = {"last": (n - 1,), "first": (0,), "all": tuple(range(n))}
+        if actuated not in named:
+            raise InputError(f"actuated must be 'last', 'first', 'all' or joint indices (0 to {n - 1}), got {actuated!r}")
+        return named[actuated]
+    try:
+        joints = tuple(int(j) for j in actuated)  # type: ignore[attr-defined]
+    except (TypeError, ValueError):
+        raise InputError(f"actuated must be 'last', 'first', 'all' or joint indices (0 to {n - 1}), got {actuated!r}") from None
+    if not joints or len(set(joints)) != len(joints) or any(not 0 <= j < n for j in joints):
+        raise InputError(f"actuated must name distinct joints 0 to {n - 1}, got {actuated!r}")
+    return tuple(sorted(joints))
+
+
+class Acrobot(Task):
+    """An N-link chain hanging from a fixed pivot, motors on some joints, swung up.
+
+    Observation: ``(cos theta_1..N, sin theta_1..N, omega_1..N)``. Reward -1 per step, 0 on the
+    step that ends the episode (gymnasium's Acrobot): terminated when the tip rises above the
+    pivot by ``goal`` times the chain's length (0.5: Acrobot's "one link above the pivot")."""
+
+    name = "multipendulum/Acrobot-v0"
+    KEYWORDS = ("n", "lengths", "masses", "links", "g", "damping", "friction", "friction_velocity", "actuated",
+                "action_type", "max_torque", "dt", "substeps", "method", "goal", "low", "high")
+
+    def __init__(self, n: int = 2, lengths: object = 1.0, masses: object = 1.0, links: str = "rods",
+                 g: Optional[float] = None, damping: object = None, friction: object = None,
+                 friction_velocity: Optional[float] = None, actuated: object = "last",
+                 action_type: str = "continuous", max_torque: object = 1.0, dt: float = 0.2,
+                 substeps: Optional[int] = None, method: str = "rk4", goal: float = 0.5,
+                 low: float = -0.1, high: float = 0.1, **unknown: Any) -> None:
+        super().__init__()
+        refuse_unknown(self.name, unknown, self.KEYWORDS + ("render_mode", "max_episode_steps"))
+        self.n = count(n, "n")
+        self.chain = build_chain(self.n, lengths, masses, links, g, damping, friction, friction_velocity)
+        self.dt, self.substeps, self.method = stepping(dt, substeps, method, self.n, upright=False)
+        self.joints = _joint_set(actuated, self.n)
+        k = len(self.joints)
+        self.scale = per_link(max_torque, "max_torque", k)
+        if np.any(self.scale <= 0) or not np.all(np.isfinite(self.scale)):
+            raise InputError(f"max_torque must be > 0 and finite, got {max_torque!r}")
+        if action_type not in ("continuous", "discrete"):
+            raise InputError(f"action_type must be 'continuous' or 'discrete', got {action_type!r}")
+        self.discrete = action_type == "discrete"
+        if self.discrete:
+            self.single_action_space = spaces.Discrete(3) if k == 1 else spaces.MultiDiscrete([3] * k)
+        else:
+            self.single_action_space = spaces.Box(-1.0, 1.0, (k,), dtype=np.float64)
+        self.goal = as_fraction(goal)
+        self.low, self.high = float(low), float(high)
+        self.reach = float(np.sum(self.chain.lengths))
+        n_ = self.n
+        hi = np.concatenate([np.ones(2 * n_), np.full(n_, np.inf)])
+        self.single_observation_space = spaces.Box(-hi, hi, dtype=np.float64)
+
+    def inputs(self, actions: object, batch: Tuple[int, ...]) -> Tuple[Array, Optional[Array]]:
+        k = len(self.joints)
+        u = self._discrete(actions, batch, k) if self.discrete else self._continuous(actions, batch)
+        torques = np.zeros(batch + (self.n,))
+        torques[..., list(self.joints)] = u.reshape(batch + (k,))
+        return torques, None
+
+    def initial(self, rng: np.random.Generator, low: float, high: float) -> Array:
+        return rng.uniform(low=low, high=high, size=(2 * self.n,))
+
+    def observe(self, states: Array) -> Array:
+        n = self.n
+        th = states[:, :n]
+        return np.concatenate([np.cos(th), np.sin(th), states[:, n:2 * n]], axis=1)
+
+    def outcome(self, states: Array) -> Tuple[Array, npt.NDArray[np.bool_]]:
+        height = -(np.cos(states[:, :self.n]) @ self.chain.lengths)
+        terminated = height > self.goal * self.reach
+        return np.where(terminated, 0.0, -1.0), terminated
+
+
+def as_fraction(goal: object) -> float:
+    v = positive(goal, "goal")
+    if v > 1:
+        raise InputError(f"goal must be in (0, 1] (a fraction of the chain's length), got {v:g}")
+    return v
+
+
+class CartPole(Task):
+    """N poles in a chain on a cart; a horizontal force on the cart.
+
+    Observation: ``(x, cos theta_1..N, sin theta_1..N, v, omega_1..N)``; the state
+    (``env.state``) is ``(x, theta_1..N, v, omega_1..N)``, the order of
+    :meth:`multipendulum.Chain.jacobian` and :func:`multipendulum.modes.linearize`.
+
+    ``task="balance"``: start within ``+-0.05`` of upright (every value), reward +1 per step
+    (gymnasium's CartPole-v1), terminated when a pole leans more than ``angle_limit`` from
+    upright or the cart leaves ``|x| <= x_limit``. ``task="swingup"``: start hanging
+    (``+-0.05``), reward ``mean_i (1 - cos theta_i) / 2`` per step (1 upright, 0 hanging),
+    terminated only when the cart leaves the track."""
+
+    name = "multipendulum/CartPole-v0"
+    KEYWORDS = ("n", "lengths", "masses", "links", "cart_mass", "cart_damping", "g", "damping", "friction",
+                "friction_velocity", "max_force", "dt", "substeps", "method", "task", "x_limit", "angle_limit",
+                "low", "high")
+
+    def __init__(self, n: int = 1, lengths: object = 1.0, masses: object = 0.1, links: str = "rods",
+                 cart_mass: float = 1.0, cart_damping: float = 0.0, g: Optional[float] = None,
+                 damping: object = None, friction: object = None, friction_velocity: Optional[float] = None,
+                 max_force: float = 10.0, dt: float = 0.02, substeps: Optional[int] = None, method: str = "rk4",
+                 task: str = "balance", x_limit: float = 2.4, angle_limit: float = 12 * math.pi / 180,
+                 low: float = -0.05, high: float = 0.05, **unknown: Any) -> None:
+        super().__init__()
+        refuse_unknown(self.name, unknown, self.KEYWORDS + ("render_mode", "max_episode_steps"))
+        self.n = count(n, "n")
+        cart = Cart(cart_mass, damping=cart_damping)
+        self.chain = build_chain(self.n, lengths, masses, links, g, damping, friction, friction_velocity, cart)
+        if task not in ("balance", "swingup"):
+            raise InputError(f"task must be 'balance' or 'swingup', got {task!r}")
+        self.task = task
+        self.dt, self.substeps, self.method = stepping(dt, substeps, method, self.n, upright=task == "balance")
+        self.max_force = positive(max_force, "max_force")
+        self.scale = np.array([self.max_force])
+        self.single_action_space = spaces.Box(-1.0, 1.0, (1,), dtype=np.float64)
+        self.x_limit = positive(x_limit, "x_limit")
+        self.angle_limit = positive(angle_limit, "angle_limit")
+        self.low, self.high = float(low), float(high)
+        n_ = self.n
+        hi = np.concatenate([[np.inf], np.ones(2 * n_), np.full(n_ + 1, np.inf)])
+        self.single_observation_space = spaces.Box(-hi, hi, dtype=np.float64)
+
+    def inputs(self, actions: object, batch: Tuple[int, ...]) -> Tuple[Array, Optional[Array]]:
+        f = self._continuous(actions, batch)
+        return np.zeros(batch + (self.n,)), f.reshape(batch)
+
+    def initial(self, rng: np.random.Generator, low: float, high: float) -> Array:
+        n = self.n
+        s = rng.uniform(low=low, high=high, size=(2 * n + 2,))  # (x, theta, v, omega)
+        if self.task == "balance":
+            s[1:n + 1] += np.pi
+        return np.concatenate([s[1:n + 1], s[n + 2:], [s[0], s[n + 1]]])
+
+    def observe(self, states: Array) -> Array:
+        n = self.n
+        th = states[:, :n]
+        return np.concatenate([states[:, 2 * n:2 * n + 1], np.cos(th), np.sin(th), states[:, 2 * n + 1:],
+                               states[:, n:2 * n]], axis=1)
+
+    def outcome(self, states: Array) -> Tuple[Array, npt.NDArray[np.bool_]]:
+        n = self.n
+        off_track = np.abs(states[:, 2 * n]) > self.x_limit
+        if self.task == "balance":
+            lean = np.abs(_wrap(states[:, :n] - np.pi))
+            terminated = off_track | np.any(lean > self.angle_limit, axis=1)
+            return np.ones(len(states)), terminated
+        return np.mean(1.0 - np.cos(states[:, :n]), axis=1) / 2, off_track
+
+    def public_state(self, states: Array) -> Array:
+        n = self.n
+        return np.concatenate([states[:, 2 * n:2 * n + 1], states[:, :n], states[:, 2 * n + 1:], states[:, n:2 * n]], axis=1)
+
+    def core_state(self, state: object) -> Tuple[Array, Array, Tuple[float, float]]:
+        n = self.n
+        s = _numbers(state, "state").astype(np.float64).ravel()
+        if s.size != 2 * n + 2 or not np.all(np.isfinite(s)):
+            raise InputError(f"state must be {2 * n + 2} finite numbers (x, theta (N), v, omega (N)), got {state!r}")
+        return s[1:n + 1], s[n + 2:], (float(s[0]), float(s[n + 1]))
+
+
+TASKS: Dict[str, Any] = {"acrobot": Acrobot, "cartpole": CartPole}
+__all__: Sequence[str] = ["Task", "Acrobot", "CartPole", "TASKS"]

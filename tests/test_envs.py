@@ -1,0 +1,323 @@
+"""The Gymnasium environments (multipendulum.envs), checked with gymnasium itself: its env
+checker on every id, its own Acrobot-v1 and CartPole-v1 as the references for the drop-in and the
+cart-pole's equations, its SyncVectorEnv as the reference for the vector environment."""
+import os
+import subprocess
+import sys
+import warnings
+
+import numpy as np
+import pytest
+
+gym = pytest.importorskip("gymnasium")
+import multipendulum as mp  # noqa: E402
+import multipendulum.envs as envs  # noqa: E402
+from gymnasium.utils.env_checker import check_env  # noqa: E402
+from gymnasium.vector import AutoresetMode  # noqa: E402
+
+IDS = ["multipendulum/Acrobot-v0", "multipendulum/CartPole-v0", "multipendulum/AcrobotCompat-v0"]
+# Expected: unbounded rates (as MuJoCo's envs have), and check_env's try of render_mode="human"
+# saying that this headless test run has no window.
+EXPECTED = ("minimum value is -infinity", "maximum value is infinity", "needs a window")
+
+
+@pytest.mark.parametrize("env_id,kwargs", [
+    (IDS[0], {}), (IDS[0], {"action_type": "discrete", "n": 3}), (IDS[0], {"actuated": "all", "n": 3}),
+    (IDS[0], {"actuated": "first", "action_type": "discrete", "damping": 0.05}),
+    (IDS[1], {}), (IDS[1], {"n": 2, "task": "swingup", "friction": 0.01}), (IDS[2], {}),
+])
+def test_gymnasium_check_env_passes_on_every_id(env_id, kwargs):
+    env = gym.make(env_id, render_mode="rgb_array", **kwargs)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        check_env(env.unwrapped)
+    other = [str(w.message) for w in caught if not any(s in str(w.message) for s in EXPECTED)]
+    assert other == [], other
+
+
+def test_the_ids_make_this_package_s_vector_env():
+    for env_id in IDS:
+        v = gym.make_vec(env_id, num_envs=3)
+        assert type(v).__module__.startswith("multipendulum.envs"), type(v)
+        assert isinstance(v.unwrapped, gym.vector.VectorEnv)
+        assert v.metadata["autoreset_mode"] == AutoresetMode.NEXT_STEP
+        assert v.observation_space.shape[0] == 3
+        v.close()
+
+
+# --- AcrobotCompat-v0 against gymnasium's Acrobot-v1 -------------------------------------------
+
+def test_compat_transitions_equal_gymnasium_acrobot_from_the_same_states():
+    ours = gym.make("multipendulum/AcrobotCompat-v0").unwrapped
+    ref = gym.make("Acrobot-v1").unwrapped
+    ours.reset(seed=0)
+    ref.reset(seed=0)
+    rng = np.random.default_rng(5)
+    worst = 0.0
+    for _ in range(400):
+        s = rng.uniform([-np.pi, -np.pi, -4 * np.pi, -9 * np.pi], [np.pi, np.pi, 4 * np.pi, 9 * np.pi])
+        a = int(rng.integers(3))
+        ours.state, ref.state = s.copy(), s.copy()  # settable, as in gymnasium's AcrobotEnv
+        o1, r1, t1, _, info = ours.step(a)
+        o2, r2, t2, _, _ = ref.step(a)
+        d = np.abs(ours.state - ref.state)
+        d[:2] = np.minimum(d[:2], 2 * np.pi - d[:2])  # the same angle either side of the wrap
+        worst = max(worst, float(d.max()))
+        assert (r1, t1) == (r2, t2)
+        np.testing.assert_allclose(o1, o2, atol=1e-6)  # float32 observations
+    assert worst < 1e-9, worst
+
+
+def test_compat_episodes_equal_gymnasium_from_the_same_seed():
+    ours, ref = gym.make("multipendulum/AcrobotCompat-v0"), gym.make("Acrobot-v1")
+    for seed in (0, 7):
+        o1, _ = ours.reset(seed=seed)
+        o2, _ = ref.reset(seed=seed)
+        np.testing.assert_array_equal(o1, o2)
+        rng = np.random.default_rng(seed)
+        for _ in range(60):  # chaos amplifies round-off later: compare while it is small
+            a = int(rng.integers(3))
+            s1, s2 = ours.step(a), ref.step(a)
+            np.testing.assert_allclose(ours.unwrapped.state, ref.unwrapped.state, atol=1e-9)
+            assert s1[1:4] == s2[1:4]
+
+
+def test_compat_vector_env_equals_gymnasium_sync_vector_of_acrobot():
+    ours = gym.make_vec("multipendulum/AcrobotCompat-v0", num_envs=4, max_episode_steps=7)
+    ref = gym.make_vec("Acrobot-v1", num_envs=4, vectorization_mode="sync", max_episode_steps=7)
+    o1, _ = ours.reset(seed=3)
+    o2, _ = ref.reset(seed=3)
+    np.testing.assert_array_equal(o1, o2)
+    rng = np.random.default_rng(0)
+    for _ in range(20):  # past two truncations and their next-step resets
+        a = rng.integers(3, size=4)
+        r1, r2 = ours.step(a), ref.step(a)
+        np.testing.assert_allclose(r1[0], r2[0], atol=1e-6)
+        for k in (1, 2, 3):
+            np.testing.assert_array_equal(r1[k], r2[k])
+
+
+def test_compat_refuses_the_nips_dynamics_and_bad_actions():
+    env = gym.make("multipendulum/AcrobotCompat-v0").unwrapped
+    env.reset(seed=0)
+    for bad in (3, -1, 1.5, "1"):
+        with pytest.raises(mp.InputError, match="action must be"):
+            env.step(bad)
+    env.book_or_nips = "nips"
+    with pytest.raises(mp.InputError, match="book's dynamics only"):
+        env.step(1)
+
+
+# --- CartPole-v0 against gymnasium's CartPole-v1 -----------------------------------------------
+
+def test_cartpole_accelerations_equal_gymnasium_cartpole_equations_for_a_rod():
+    """gymnasium's CartPole-v1 (a uniform rod of length 2 * 0.5, masses 0.1 and 1, g = 9.8; its
+    angle from upright, positive clockwise: ours is pi - its), its accelerations recovered from
+    one Euler step of its own code."""
+    task = envs.CartPole(g=9.8)  # the env's defaults otherwise: gymnasium's parameters
+    ref = gym.make("CartPole-v1").unwrapped
+    ref.reset(seed=0)
+    ref.kinematics_integrator = "euler"
+    rng = np.random.default_rng(1)
+    for _ in range(300):
+        x, v, th, w = rng.uniform(-1, 1, 4) * [2, 3, 3, 6]
+        a = int(rng.integers(2))
+        ref.state = np.array([x, v, th, w])
+        ref.steps_beyond_terminated = None
+        ref.step(a)
+        xacc, thacc = (ref.state[1] - v) / ref.tau, (ref.state[3] - w) / ref.tau
+        force = (1.0 if a == 1 else -1.0) * task.scale[0]  # max_force 10 N = gymnasium's force_mag
+        ours = task.chain.accelerations([np.pi - th], [-w], cart_v=v, cart_force=force)
+        np.testing.assert_allclose([ours[0], -ours[1]], [xacc, thacc], rtol=1e-12, atol=1e-11)
+
+
+# --- honest integration ----------------------------------------------------------------------
+
+@pytest.mark.parametrize("env_id,kwargs", [
+    (IDS[0], {}), (IDS[0], {"n": 3}), (IDS[0], {"n": 4}), (IDS[0], {"links": "points"}),
+    (IDS[1], {}), (IDS[1], {"n": 2}), (IDS[1], {"n": 3}), (IDS[1], {"n": 4}), (IDS[1], {"task": "swingup", "n": 3}),
+])
+def test_a_1000_step_undriven_episode_keeps_the_energy_balance_to_1e6(env_id, kwargs):
+    """The default step (envs.MAX_STEP's rule), from the default start, several seeds."""
+    worst = 0.0
+    for seed in range(3):
+        env = gym.make(env_id, max_episode_steps=None, **kwargs).unwrapped
+        env.reset(seed=seed)
+        zero = np.zeros(env.action_space.shape)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # a balance task falls and ends; it is stepped on
+            for _ in range(1000):
+                info = env.step(zero)[-1]
+                worst = max(worst, info["energy_error"])
+    assert worst < 1e-6, worst
+    assert info["t"] == pytest.approx(1000 * env.task.dt)
+
+
+def test_driven_and_damped_episodes_keep_their_energy_balance():
+    """The work of the actions and the dissipation are in the balance: a random policy on a
+    damped, rubbing chain still closes it."""
+    for env_id, kwargs in [(IDS[0], {"n": 3, "actuated": "all", "damping": 0.1, "friction": 0.05, "substeps": 40}),
+                           (IDS[1], {"n": 2, "damping": 0.02, "cart_damping": 0.3})]:
+        env = gym.make(env_id, **kwargs).unwrapped
+        env.reset(seed=1)
+        env.action_space.seed(1)
+        for _ in range(300):
+            info = env.step(env.action_space.sample())[-1]
+        assert info["energy_error"] < 1e-6, (env_id, info)
+
+
+def test_the_step_is_substeps_of_the_chosen_method():
+    """dt and substeps as given: one env step of rk4 equals mp.simulate's rk4 over dt in
+    dt / substeps steps, bit for bit (the same core driver)."""
+    env = gym.make(IDS[0], n=2, dt=0.1, substeps=4, max_torque=0.5).unwrapped
+    env.reset(options={"state": [0.3, -0.2, 0.1, 0.4]})
+    env.step(np.array([0.6]))
+    sol = mp.simulate(env.task.chain, [0.3, -0.2], [0.1, 0.4], t_end=0.1, method="rk4", dt=0.025,
+                      joint_torque=[0.0, 0.3])
+    np.testing.assert_array_equal(env.state, np.concatenate([sol.theta[-1], sol.omega[-1]]))
+    gauss = gym.make(IDS[0], method="gauss6").unwrapped
+    gauss.reset(seed=0)
+    for _ in range(50):
+        info = gauss.step(np.zeros(1))[-1]
+    assert info["energy_error"] < 1e-10
+
+
+# --- determinism, the vector env ---------------------------------------------------------------
+
+def test_reset_with_a_seed_is_deterministic():
+    env = gym.make(IDS[1], n=2)
+    a, _ = env.reset(seed=11)
+    b, _ = env.reset(seed=11)
+    c, _ = env.reset(seed=12)
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, c)
+
+
+def _sync(env_id, num, **kwargs):
+    return gym.make_vec(env_id, num_envs=num, vectorization_mode="sync", **kwargs)
+
+
+@pytest.mark.parametrize("mode", [AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP])
+@pytest.mark.parametrize("env_id,kwargs", [(IDS[0], {"n": 2, "goal": 0.05}), (IDS[1], {"n": 2})])
+def test_the_vector_env_equals_gymnasium_sync_vector_env_of_the_single_env(env_id, kwargs, mode):
+    """Bit for bit, through terminations, truncations and autoresets of gymnasium's kind."""
+    num = 5
+    ours = gym.make_vec(env_id, num_envs=num, max_episode_steps=9, autoreset_mode=mode, **kwargs)
+    ref = _sync(env_id, num, max_episode_steps=9, vector_kwargs={"autoreset_mode": mode}, **kwargs)
+    o1, i1 = ours.reset(seed=2)
+    o2, i2 = ref.reset(seed=2)
+    np.testing.assert_array_equal(o1, o2)
+    np.testing.assert_array_equal(i1["energy_error"], i2["energy_error"])
+    rng = np.random.default_rng(0)
+    ends = 0
+    for _ in range(40):
+        a = rng.uniform(-1, 1, (num,) + ours.single_action_space.shape)
+        r1, r2 = ours.step(a), ref.step(a)
+        for k in range(4):
+            np.testing.assert_array_equal(r1[k], r2[k])
+        np.testing.assert_array_equal(r1[4]["energy_error"], r2[4]["energy_error"])
+        if mode == AutoresetMode.SAME_STEP and "final_obs" in r2[4]:
+            np.testing.assert_array_equal(r1[4]["_final_obs"], r2[4]["_final_obs"])
+            for f1, f2 in zip(r1[4]["final_obs"], r2[4]["final_obs"]):
+                assert (f1 is None and f2 is None) or np.array_equal(f1, f2)
+        ends += int(np.sum(r1[2] | r1[3]))
+    assert ends >= num * 3  # the comparison went through several autoresets
+
+
+def test_the_vector_env_is_the_same_on_any_number_of_threads():
+    code = ("import numpy as np, gymnasium as gym, multipendulum.envs\n"
+            "v = gym.make_vec('multipendulum/Acrobot-v0', num_envs=64, n=3)\n"
+            "v.reset(seed=0); rng = np.random.default_rng(0)\n"
+            "for _ in range(30): o = v.step(rng.uniform(-1, 1, (64, 1)))[0]\n"
+            "print(o.tobytes().hex())\n")
+    outs = {subprocess.run([sys.executable, "-c", code], env={**os.environ, "RAYON_NUM_THREADS": str(t)},
+                           capture_output=True, text=True, check=True).stdout for t in (1, 2)}
+    assert len(outs) == 1
+
+
+def test_disabled_autoreset_needs_a_masked_reset():
+    v = gym.make_vec(IDS[0], num_envs=3, max_episode_steps=2, autoreset_mode="Disabled")
+    v.reset(seed=0)
+    v.step(np.zeros((3, 1)))
+    _, _, _, trunc, _ = v.step(np.zeros((3, 1)))
+    assert trunc.all()
+    with pytest.raises(mp.InputError, match="reset_mask"):
+        v.step(np.zeros((3, 1)))
+    mask = np.array([True, False, True])
+    v.reset(options={"reset_mask": mask})
+    with pytest.raises(mp.InputError, match=r"indices \[1\]"):
+        v.step(np.zeros((3, 1)))
+
+
+# --- bad input ---------------------------------------------------------------------------------
+
+def test_unknown_make_keywords_are_input_errors_naming_them():
+    with pytest.raises(mp.InputError, match="unknown keyword.*lenghts.*valid keywords: n, lengths"):
+        gym.make(IDS[0], lenghts=2.0)
+    with pytest.raises(mp.InputError, match="unknown keyword.*masss"):
+        gym.make_vec(IDS[1], num_envs=2, masss=1.0)
+    with pytest.raises(mp.InputError, match="method must be one of"):
+        gym.make(IDS[0], method="euler")
+    with pytest.raises(mp.InputError, match="dt must be > 0"):
+        gym.make(IDS[1], dt=-0.1)
+    with pytest.raises(mp.InputError, match="actuated must name distinct joints 0 to 1"):
+        gym.make(IDS[0], actuated=[2])
+    with pytest.raises(mp.InputError, match="masses must be > 0|masses"):
+        gym.make(IDS[0], masses=[1.0, -1.0])
+
+
+def test_actions_of_the_wrong_shape_or_nan_are_refused_and_out_of_range_clipped():
+    env = gym.make(IDS[0], n=3, actuated="all").unwrapped
+    env.reset(seed=0)
+    with pytest.raises(mp.InputError, match=r"action must have shape \(3,\), got \(2,\)"):
+        env.step(np.zeros(2))
+    with pytest.raises(mp.InputError, match="action must be finite, got nan at index \\(1,\\)"):
+        env.step(np.array([0.0, np.nan, 0.0]))
+    with pytest.raises(mp.InputError, match="numbers"):
+        env.step(np.array(["a", "b", "c"]))
+    assert np.all(np.isfinite(env.state))  # the refused steps did not move it
+    start = {"state": env.state}
+    a = env.step(np.array([5.0, -7.0, 0.5]))[0]
+    env.reset(options=start)
+    b = env.step(np.array([1.0, -1.0, 0.5]))[0]
+    np.testing.assert_array_equal(a, b)
+    d = gym.make(IDS[0], action_type="discrete").unwrapped
+    d.reset(seed=0)
+    for bad in (3, -1, 0.5):
+        with pytest.raises(mp.InputError, match="discrete action must be"):
+            d.step(bad)
+    v = gym.make_vec(IDS[1], num_envs=4)
+    v.reset(seed=0)
+    with pytest.raises(mp.InputError, match=r"action must have shape \(4, 1\)"):
+        v.step(np.zeros(3))
+    with pytest.raises(mp.InputError, match="finite"):
+        v.step(np.full((4, 1), np.inf))
+
+
+def test_stepping_after_termination_warns_once_and_earns_nothing():
+    env = gym.make(IDS[1]).unwrapped
+    env.reset(seed=0)
+    terminated = False
+    while not terminated:
+        _, _, terminated, _, _ = env.step(np.ones(1))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        r1 = env.step(np.ones(1))[1]
+        r2 = env.step(np.ones(1))[1]
+    assert (r1, r2) == (0.0, 0.0)
+    assert sum("after the episode terminated" in str(w.message) for w in caught) == 1
+    with pytest.raises(gym.error.ResetNeeded):
+        gym.make(IDS[0]).unwrapped.step(np.zeros(1))
+
+
+def test_rgb_array_frames_show_the_state():
+    env = gym.make(IDS[1], n=2, render_mode="rgb_array")
+    env.reset(seed=0)
+    a = env.render()
+    assert a.ndim == 3 and a.shape[2] == 3 and a.shape[0] >= 400 and a.dtype == np.uint8
+    env.unwrapped.reset(options={"state": [1.0, 0.5, 2.0, 0.0, 0.0, 0.0]})
+    b = env.render()
+    assert a.shape == b.shape and np.mean(a != b) > 0.001
+    frames = gym.make_vec(IDS[0], num_envs=2, render_mode="rgb_array")
+    frames.reset(seed=0)
+    assert [f.shape for f in frames.render()] == [a.shape] * 2
