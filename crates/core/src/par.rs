@@ -27,13 +27,17 @@ mod sequential {
         }
     }
 
-    /// `par_iter_mut()`: `iter_mut()`.
+    /// `par_iter_mut()`, `par_chunks_mut(n)`: `iter_mut()`, `chunks_mut(n)`.
     pub(crate) trait ParallelSliceMut<T> {
         fn par_iter_mut(&mut self) -> std::slice::IterMut<'_, T>;
+        fn par_chunks_mut(&mut self, size: usize) -> std::slice::ChunksMut<'_, T>;
     }
     impl<T> ParallelSliceMut<T> for [T] {
         fn par_iter_mut(&mut self) -> std::slice::IterMut<'_, T> {
             self.iter_mut()
+        }
+        fn par_chunks_mut(&mut self, size: usize) -> std::slice::ChunksMut<'_, T> {
+            self.chunks_mut(size)
         }
     }
 

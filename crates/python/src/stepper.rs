@@ -61,16 +61,27 @@ impl PySteppers {
     /// Hold joint torques (count x N, flat) and cart forces (count, or empty without a cart),
     /// then advance every copy by `span` (whole steps of a fixed-step method's grid), without
     /// the GIL.
-    /// `active`: one flag per copy, the copies that move (None: all).
+    /// `active`: one flag per copy, the copies that move (None: all). Returns the new states
+    /// and balances, as `states()` and `balance()` would.
     #[pyo3(signature = (torques, forces, span, active=None))]
-    fn step(&mut self, py: Python<'_>, torques: PyReadonlyArray1<'_, f64>, forces: PyReadonlyArray1<'_, f64>, span: f64, active: Option<PyReadonlyArray1<'_, bool>>) -> PyResult<()> {
+    fn step<'py>(
+        &mut self,
+        py: Python<'py>,
+        torques: PyReadonlyArray1<'_, f64>,
+        forces: PyReadonlyArray1<'_, f64>,
+        span: f64,
+        active: Option<PyReadonlyArray1<'_, bool>>,
+    ) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>)> {
         let (torques, forces) = (slice("torques", &torques)?, slice("forces", &forces)?);
         let active = match &active {
             Some(a) => a.as_slice().map_err(|_| InputError::new_err("active must be a C-contiguous bool array"))?,
             None => &[],
         };
+        let count = self.inner.len();
+        let (mut states, mut balance) = (vec![0.0; count * self.inner.state_len()], vec![0.0; count * 3]);
         let inner = &mut self.inner;
-        py.detach(|| inner.step(torques, forces, span, active)).map_err(|e| to_py(py, e))
+        py.detach(|| inner.step(torques, forces, span, active, &mut states, &mut balance)).map_err(|e| to_py(py, e))?;
+        Ok((PyArray1::from_vec(py, states), PyArray1::from_vec(py, balance)))
     }
 
     /// Every copy's state, count x state_len values (flat).

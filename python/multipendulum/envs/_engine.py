@@ -99,21 +99,29 @@ class Engine:
         self._st = _core.Steppers(chain._c, num, method=method, rtol=DEFAULTS["rtol"], atol=DEFAULTS["atol"],
                                   max_steps=int(DEFAULTS["max_steps"]), dt=dt / substeps if fixed else None)
         self._no_force = np.zeros(0)
-        self._all = None
+        self._states: Optional[Array] = None
+        self._balance: Optional[Array] = None
 
     def reset(self, i: int, theta: Array, omega: Array, cart: Tuple[float, float] = (0.0, 0.0)) -> None:
         self._st.reset(int(i), np.ascontiguousarray(theta, dtype=float), np.ascontiguousarray(omega, dtype=float),
                        (float(cart[0]), float(cart[1])))
+        self._states = self._balance = None
 
     def step(self, torques: Array, forces: Optional[Array], active: Optional[npt.NDArray[np.bool_]] = None) -> None:
         """Hold joint torques (B, N) and cart forces (B,) over one env step of every active copy."""
         f = self._no_force if forces is None else np.ascontiguousarray(forces, dtype=float).ravel()
         act = None if active is None or bool(np.all(active)) else np.ascontiguousarray(active, dtype=bool)
-        self._st.step(np.ascontiguousarray(torques, dtype=float).ravel(), f, self.dt, act)
+        states, balance = self._st.step(np.ascontiguousarray(torques, dtype=float).ravel(), f, self.dt, act)
+        self._states, self._balance = states.reshape(self.num, -1), balance.reshape(self.num, 3)
 
     def states(self) -> Array:
-        return self._st.states().reshape(self.num, -1)
+        """(B, k): each copy's ``(theta, omega, [x, v])`` (the arrays are the engine's: copy to keep)."""
+        if self._states is None:
+            self._states = self._st.states().reshape(self.num, -1)
+        return self._states
 
     def balance(self) -> Array:
         """(B, 3): time, energy (lab frame) and the energy-balance residual of each copy."""
-        return self._st.balance().reshape(self.num, 3)
+        if self._balance is None:
+            self._balance = self._st.balance().reshape(self.num, 3)
+        return self._balance

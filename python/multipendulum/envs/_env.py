@@ -82,7 +82,8 @@ class PendulumEnv(gym.Env[Any, Any]):
         torques, forces = self.task.inputs(action, ())
         self._engine.step(torques[None], None if forces is None else forces.reshape(1))
         self._states = self._engine.states()
-        reward, terminated = self.task.outcome(self._states)
+        obs = self.task.observe(self._states)
+        reward, terminated = self.task.outcome(self._states, obs)
         r = float(reward[0])
         if self._terminated:
             # As gymnasium's CartPole: stepping on after the end says so, once, and earns nothing.
@@ -94,7 +95,7 @@ class PendulumEnv(gym.Env[Any, Any]):
         self._terminated = self._terminated or bool(terminated[0])
         if self.render_mode == "human":
             self.render()
-        return self.task.observe(self._states)[0], r, bool(terminated[0]), False, _info(self._engine.balance()[0])
+        return obs[0], r, bool(terminated[0]), False, _info(self._engine.balance()[0])
 
     def render(self) -> Optional[npt.NDArray[np.uint8]]:
         if self.render_mode is None:
@@ -206,8 +207,9 @@ class PendulumVectorEnv(VectorEnv[Any, Any, Any]):
 
     def _infos(self, balance: Array, mask: npt.NDArray[np.bool_]) -> Info:
         info: Info = {}
+        every = bool(mask.all())
         for k, key in enumerate(("t", "energy", "energy_error")):
-            info[key] = np.where(mask, balance[:, k], 0.0)
+            info[key] = balance[:, k].copy() if every else np.where(mask, balance[:, k], 0.0)
             info["_" + key] = mask.copy()
         return info
 
@@ -220,17 +222,18 @@ class PendulumVectorEnv(VectorEnv[Any, Any, Any]):
         if mode == AutoresetMode.DISABLED and self._done.any():
             raise InputError("autoreset_mode='Disabled': reset the environments that ended "
                              f"(indices {np.flatnonzero(self._done).tolist()}) with reset(options={{'reset_mask': ...}})")
-        for i in np.flatnonzero(restart):
-            self._start(int(i), None)
+        if restart.any():
+            for i in np.flatnonzero(restart):
+                self._start(int(i), None)
         self._engine.step(torques, forces, ~restart)
         self._steps[~restart] += 1
         self._states = self._engine.states()
         balance = self._engine.balance()
-        reward, terminated = self.task.outcome(self._states)
+        obs = self.task.observe(self._states)
+        reward, terminated = self.task.outcome(self._states, obs)
         truncated = (self._steps >= self.max_episode_steps) if self.max_episode_steps is not None \
             else np.zeros(self.num_envs, dtype=np.bool_)
         reward[restart], terminated[restart], truncated[restart] = 0.0, False, False
-        obs = self.task.observe(self._states)
         everyone = np.ones(self.num_envs, dtype=np.bool_)
         info = self._infos(balance, everyone)
         done = terminated | truncated

@@ -62,15 +62,15 @@ class Task:
         """Box(-1, 1) actions -> physical values: out-of-range values are clipped (as
         gymnasium's Pendulum and MountainCarContinuous do), NaN and inf refused."""
         shape = batch + tuple(self.single_action_space.shape or ())
-        a = _numbers(actions, "action").astype(np.float64)
+        a = actions if type(actions) is np.ndarray and actions.dtype == np.float64 else \
+            _numbers(actions, "action").astype(np.float64)
         if a.shape != shape:
             if a.size == int(np.prod(shape)) and batch == () and a.ndim <= 1:
                 a = a.reshape(shape)  # a bare number for a one-value action
             else:
                 raise InputError(f"action must have shape {shape}, got {a.shape}")
-        bad = ~np.isfinite(a)
-        if bad.any():
-            where = tuple(int(i) for i in np.argwhere(bad)[0])
+        if not np.isfinite(a).all():
+            where = tuple(int(i) for i in np.argwhere(~np.isfinite(a))[0])
             raise InputError(f"action must be finite, got {a[where]} at index {where}")
         return np.clip(a, -1.0, 1.0) * self.scale
 
@@ -105,8 +105,8 @@ class Task:
     def observe(self, states: Array) -> Array:
         raise NotImplementedError
 
-    def outcome(self, states: Array) -> Tuple[Array, npt.NDArray[np.bool_]]:
-        """-> reward (B,), terminated (B,)."""
+    def outcome(self, states: Array, obs: Array) -> Tuple[Array, npt.NDArray[np.bool_]]:
+        """-> reward (B,), terminated (B,), given the states and their observations."""
         raise NotImplementedError
 
     def public_state(self, states: Array) -> Array:
@@ -174,7 +174,8 @@ class Acrobot(Task):
             self.single_action_space = spaces.Box(-1.0, 1.0, (k,), dtype=np.float64)
         self.goal = as_fraction(goal)
         self.low, self.high = float(low), float(high)
-        self.reach = float(np.sum(self.chain.lengths))
+        self._lengths = self.chain.lengths
+        self.reach = float(np.sum(self._lengths))
         n_ = self.n
         hi = np.concatenate([np.ones(2 * n_), np.full(n_, np.inf)])
         self.single_observation_space = spaces.Box(-hi, hi, dtype=np.float64)
@@ -182,8 +183,13 @@ class Acrobot(Task):
     def inputs(self, actions: object, batch: Tuple[int, ...]) -> Tuple[Array, Optional[Array]]:
         k = len(self.joints)
         u = self._discrete(actions, batch, k) if self.discrete else self._continuous(actions, batch)
+        if k == self.n:
+            return u.reshape(batch + (k,)), None
         torques = np.zeros(batch + (self.n,))
-        torques[..., list(self.joints)] = u.reshape(batch + (k,))
+        if k == 1:
+            torques[..., self.joints[0]] = u.reshape(batch)
+        else:
+            torques[..., list(self.joints)] = u.reshape(batch + (k,))
         return torques, None
 
     def initial(self, rng: np.random.Generator, low: float, high: float) -> Array:
@@ -191,13 +197,16 @@ class Acrobot(Task):
 
     def observe(self, states: Array) -> Array:
         n = self.n
-        th = states[:, :n]
-        return np.concatenate([np.cos(th), np.sin(th), states[:, n:2 * n]], axis=1)
+        obs = np.empty((len(states), 3 * n))
+        np.cos(states[:, :n], out=obs[:, :n])
+        np.sin(states[:, :n], out=obs[:, n:2 * n])
+        obs[:, 2 * n:] = states[:, n:2 * n]
+        return obs
 
-    def outcome(self, states: Array) -> Tuple[Array, npt.NDArray[np.bool_]]:
-        height = -(np.cos(states[:, :self.n]) @ self.chain.lengths)
+    def outcome(self, states: Array, obs: Array) -> Tuple[Array, npt.NDArray[np.bool_]]:
+        height = -(obs[:, :self.n] @ self._lengths)  # obs starts with cos theta
         terminated = height > self.goal * self.reach
-        return np.where(terminated, 0.0, -1.0), terminated
+        return terminated - 1.0, terminated
 
 
 def as_fraction(goal: object) -> float:
@@ -263,18 +272,22 @@ class CartPole(Task):
 
     def observe(self, states: Array) -> Array:
         n = self.n
-        th = states[:, :n]
-        return np.concatenate([states[:, 2 * n:2 * n + 1], np.cos(th), np.sin(th), states[:, 2 * n + 1:],
-                               states[:, n:2 * n]], axis=1)
+        obs = np.empty((len(states), 3 * n + 2))
+        obs[:, 0] = states[:, 2 * n]
+        np.cos(states[:, :n], out=obs[:, 1:n + 1])
+        np.sin(states[:, :n], out=obs[:, n + 1:2 * n + 1])
+        obs[:, 2 * n + 1] = states[:, 2 * n + 1]
+        obs[:, 2 * n + 2:] = states[:, n:2 * n]
+        return obs
 
-    def outcome(self, states: Array) -> Tuple[Array, npt.NDArray[np.bool_]]:
+    def outcome(self, states: Array, obs: Array) -> Tuple[Array, npt.NDArray[np.bool_]]:
         n = self.n
         off_track = np.abs(states[:, 2 * n]) > self.x_limit
         if self.task == "balance":
             lean = np.abs(_wrap(states[:, :n] - np.pi))
             terminated = off_track | np.any(lean > self.angle_limit, axis=1)
             return np.ones(len(states)), terminated
-        return np.mean(1.0 - np.cos(states[:, :n]), axis=1) / 2, off_track
+        return np.mean(1.0 - obs[:, 1:n + 1], axis=1) / 2, off_track  # obs[1:n+1]: cos theta
 
     def public_state(self, states: Array) -> Array:
         n = self.n

@@ -164,6 +164,30 @@ impl<T: TorqueSource> Stepper<T> {
         self.run.system_mut().hold_force(f)
     }
 
+    /// Write the state `(theta, omega, [x, v])` into `row` and `(t, energy, energy_error)` into
+    /// `balance` (the energy terms computed once; NaN if a user's pivot function fails).
+    pub fn report(&mut self, row: &mut [f64], balance: &mut [f64]) {
+        let n = self.n();
+        row[..n].copy_from_slice(self.theta());
+        let Stepper { run, form, ws, omega, p, books, balance: books_balance, .. } = self;
+        fill_rates(run.system().chain(), *form, run.y(), omega, p, ws);
+        row[n..2 * n].copy_from_slice(omega);
+        let (t, sys) = (run.t(), run.system());
+        let terms = books.terms(sys.chain(), sys.drive(), t, run.y());
+        if let Some(i) = sys.layout().cart() {
+            row[2 * n] = run.y()[i];
+            row[2 * n + 1] = terms.as_ref().map_or(f64::NAN, |t| t.cart_v);
+        }
+        balance[0] = t;
+        match terms {
+            Ok(t) => {
+                balance[1] = t.energy;
+                balance[2] = books_balance.observe(t.kinetic, t.energy, t.torque + t.pivot + t.cart - t.dissipated);
+            }
+            Err(_) => balance[1..3].fill(f64::NAN),
+        }
+    }
+
     /// Restart the integrator from the current state after its inputs changed (what it carried
     /// from the last step, such as dop853's last derivative, belonged to the old inputs).
     pub fn restart(&mut self) -> Result<()> {
@@ -241,10 +265,12 @@ impl Steppers {
     /// by `span` (the fixed-step methods: the whole steps of their grid up to `t + span`, so
     /// `span = k dt` is exactly k steps; dop853 lands on `t + span`). An input that is not
     /// finite is refused before any copy moves. `active`: which copies move (one flag per copy;
-    /// empty: all), the others keep their state and ignore their inputs. The first copy (by
-    /// index) that fails names itself in the error; it stays failed until reset, the others
-    /// have taken their steps.
-    pub fn step(&mut self, torques: &[f64], forces: &[f64], span: f64, active: &[bool]) -> Result<()> {
+    /// empty: all), the others keep their state and ignore their inputs. Then every copy
+    /// writes its row of `states` and `balance` as [`Steppers::states_into`] and
+    /// [`Steppers::balance_into`] do (in the same parallel pass). The first copy (by index) that
+    /// fails names itself in the error; it stays failed until reset, the others have taken
+    /// their steps.
+    pub fn step(&mut self, torques: &[f64], forces: &[f64], span: f64, active: &[bool], states: &mut [f64], balance: &mut [f64]) -> Result<()> {
         if !(span.is_finite() && span > 0.0) {
             return Err(Error::input(format!("span must be > 0 and finite, got {span}")));
         }
@@ -259,10 +285,15 @@ impl Steppers {
         if !active.is_empty() && active.len() != count {
             return Err(Error::input(format!("active must have {count} flags (one per copy) or none, got {}", active.len())));
         }
+        let k = self.state_len();
+        if states.len() != count * k || balance.len() != count * 3 {
+            return Err(Error::input(format!("the outputs must have count x {k} and count x 3 values")));
+        }
         check_finite("torques", torques)?;
         check_finite("forces", forces)?;
-        let one = |(i, (st, u)): (usize, (&mut Stepper<Joint<Builtin>>, &[f64]))| -> Option<(usize, Error)> {
+        let one = |(i, (((st, u), row), bal)): (usize, (((&mut Stepper<Joint<Builtin>>, &[f64]), &mut [f64]), &mut [f64]))| -> Option<(usize, Error)> {
             if active.get(i) == Some(&false) {
+                st.report(row, bal);
                 return None;
             }
             let r = (|| {
@@ -276,13 +307,21 @@ impl Steppers {
                 let target = st.t() + span;
                 st.advance(target, u64::MAX).map(drop)
             })();
+            st.report(row, bal);
             r.err().map(|e| (i, e))
         };
         // One copy runs here: a pool's hand-over would cost more than its step.
         let failed = if count == 1 {
-            one((0, (&mut self.items[0], torques)))
+            one((0, (((&mut self.items[0], torques), states), balance)))
         } else {
-            self.items.par_iter_mut().zip(torques.par_chunks(n)).enumerate().filter_map(one).min_by_key(|(i, _)| *i)
+            self.items
+                .par_iter_mut()
+                .zip(torques.par_chunks(n))
+                .zip(states.par_chunks_mut(k))
+                .zip(balance.par_chunks_mut(3))
+                .enumerate()
+                .filter_map(one)
+                .min_by_key(|(i, _)| *i)
         };
         match failed {
             None => Ok(()),
@@ -295,25 +334,18 @@ impl Steppers {
     /// Every copy's state, count x [`Steppers::state_len`] values.
     pub fn states_into(&mut self, out: &mut [f64]) {
         let k = self.state_len();
+        let mut bal = [0.0; 3];
         for (st, row) in self.items.iter_mut().zip(out.chunks_mut(k)) {
-            let n = st.n();
-            row[..n].copy_from_slice(st.theta());
-            row[n..2 * n].copy_from_slice(st.omega());
-            if k > 2 * n {
-                let (x, v) = st.cart();
-                row[2 * n] = x;
-                row[2 * n + 1] = v;
-            }
+            st.report(row, &mut bal);
         }
     }
 
     /// Every copy's time, energy (lab frame) and energy-balance residual ([`Stepper::energy_error`]),
     /// count x 3 values.
     pub fn balance_into(&mut self, out: &mut [f64]) {
-        for (st, row) in self.items.iter_mut().zip(out.chunks_mut(3)) {
-            row[0] = st.t();
-            row[1] = st.energy();
-            row[2] = st.energy_error();
+        let mut row = vec![0.0; self.state_len()];
+        for (st, bal) in self.items.iter_mut().zip(out.chunks_mut(3)) {
+            st.report(&mut row, bal);
         }
     }
 }
@@ -426,10 +458,12 @@ mod tests {
             batch.reset(i, th, om, [0.0; 2]).unwrap();
         }
         let u = [0.0, 0.4, 1.0, -1.0, 0.0, 0.0];
-        batch.step(&u, &[], 0.2, &[]).unwrap();
-        batch.step(&u, &[], 0.2, &[true, false, true]).unwrap();
-        let mut out = vec![0.0; 3 * batch.state_len()];
-        batch.states_into(&mut out);
+        let (mut out, mut bal) = (vec![0.0; 3 * batch.state_len()], vec![0.0; 9]);
+        batch.step(&u, &[], 0.2, &[], &mut out, &mut bal).unwrap();
+        batch.step(&u, &[], 0.2, &[true, false, true], &mut out, &mut bal).unwrap();
+        let mut again = vec![0.0; out.len()];
+        batch.states_into(&mut again);
+        assert_eq!(again, out, "the step's report is the state's");
         for (i, (th, om)) in starts.iter().enumerate() {
             let mut one = Stepper::new(chain.clone(), th, om, &s, Joint(Builtin::Constant(u[2 * i..2 * i + 2].to_vec()))).unwrap();
             let span = if i == 1 { 0.2 } else { 0.4 };
@@ -438,8 +472,6 @@ mod tests {
             assert_eq!(&out[4 * i..4 * i + 2], one.theta(), "copy {i}");
             assert_eq!(&out[4 * i + 2..4 * i + 4], one.omega(), "copy {i}");
         }
-        let mut bal = vec![0.0; 9];
-        batch.balance_into(&mut bal);
         assert_eq!(bal[3], 0.2, "the masked copy stayed at t = 0.2");
         assert!(bal[2] < 1e-7 && bal[8] < 1e-7, "the torque's work closes the balance: {bal:?}");
     }
@@ -451,21 +483,18 @@ mod tests {
         let mut batch = Steppers::new(&chain, 2, &s).unwrap();
         assert_eq!(batch.state_len(), 4);
         batch.reset(1, &[3.0], &[0.0], [0.5, 0.0]).unwrap();
-        batch.step(&[0.0, 0.0], &[2.0, -1.0], 0.1, &[]).unwrap();
-        let mut out = vec![0.0; 8];
-        batch.states_into(&mut out);
+        let (mut out, mut bal) = (vec![0.0; 8], vec![0.0; 6]);
+        batch.step(&[0.0, 0.0], &[2.0, -1.0], 0.1, &[], &mut out, &mut bal).unwrap();
         // A rod hanging at rest, its cart pushed by F: at first x_ddot = F / (M + m / 4) (the
         // rod turns about its centre of percussion), so x = F t^2 / (2 (M + m / 4)) over 0.1 s.
         assert!((out[2] - 2.0 * 0.01 / 2.0 / 1.025).abs() < 2e-5, "{out:?}");
         assert!(out[6] < 0.5, "the second cart pushed back: {out:?}");
-        let mut bal = vec![0.0; 6];
-        batch.balance_into(&mut bal);
         assert!(bal[2] < 1e-9 && bal[5] < 1e-9, "{bal:?}");
-        let e = batch.step(&[0.0, f64::NAN], &[0.0, 0.0], 0.1, &[]).unwrap_err();
+        let e = batch.step(&[0.0, f64::NAN], &[0.0, 0.0], 0.1, &[], &mut out, &mut bal).unwrap_err();
         assert_eq!(e.to_string(), "torques[1] must be finite, got NaN");
-        let e = batch.step(&[0.0, 0.0], &[], 0.1, &[]).unwrap_err();
+        let e = batch.step(&[0.0, 0.0], &[], 0.1, &[], &mut out, &mut bal).unwrap_err();
         assert_eq!(e.to_string(), "forces must have 2 values (one per copy with a cart), got 0");
-        let e = batch.step(&[0.0, 0.0], &[0.0, 0.0], 0.0, &[]).unwrap_err();
+        let e = batch.step(&[0.0, 0.0], &[0.0, 0.0], 0.0, &[], &mut out, &mut bal).unwrap_err();
         assert_eq!(e.to_string(), "span must be > 0 and finite, got 0");
         let e = batch.reset(2, &[0.0], &[0.0], [0.0; 2]).unwrap_err();
         assert_eq!(e.to_string(), "index 2 out of range for 2 copies");
