@@ -262,8 +262,26 @@ def test_unknown_make_keywords_are_input_errors_naming_them():
         gym.make(IDS[1], dt=-0.1)
     with pytest.raises(mp.InputError, match="actuated must name distinct joints 0 to 1"):
         gym.make(IDS[0], actuated=[2])
-    with pytest.raises(mp.InputError, match="masses must be > 0|masses"):
+    with pytest.raises(mp.InputError, match="masses"):
         gym.make(IDS[0], masses=[1.0, -1.0])
+    with pytest.raises(mp.InputError, match="com and inertia need links='general'"):
+        gym.make(IDS[0], com=0.5)
+    with pytest.raises(mp.InputError, match="needs com"):
+        gym.make(IDS[0], links="general", com=0.5)
+
+
+def test_general_links_make_gymnasium_s_acrobot_chain():
+    """links='general' with Acrobot-v1's parameters (and g = 9.8): the same step as the drop-in."""
+    ours = gym.make(IDS[0], links="general", com=0.5, inertia=1.0, g=9.8, dt=0.2, substeps=1,
+                    action_type="discrete").unwrapped
+    compat = gym.make(IDS[2]).unwrapped
+    ours.reset(options={"state": [0.3, 0.1, -1.0, 2.0]})
+    compat.reset(seed=0)
+    compat.state = np.array([0.3, 0.1 - 0.3, -1.0, 2.0 + 1.0])  # relative angle and rate
+    ours.step(2)
+    compat.step(2)
+    th, om = ours.state[:2], ours.state[2:]
+    np.testing.assert_allclose(compat.state, [th[0], th[1] - th[0], om[0], om[1] - om[0]], atol=1e-12)
 
 
 def test_actions_of_the_wrong_shape_or_nan_are_refused_and_out_of_range_clipped():

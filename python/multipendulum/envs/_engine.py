@@ -57,19 +57,27 @@ def per_link(x: object, name: str, n: int) -> Array:
 
 
 def build_chain(n: int, lengths: object, masses: object, links: str, g: Optional[float], damping: object,
-                friction: object, friction_velocity: Optional[float], cart: Optional[Cart] = None) -> Chain:
-    """The environment's chain; None keywords take :class:`~multipendulum.Chain`'s defaults."""
+                friction: object, friction_velocity: Optional[float], cart: Optional[Cart] = None,
+                com: object = None, inertia: object = None) -> Chain:
+    """The environment's chain; None keywords take :class:`~multipendulum.Chain`'s defaults.
+    ``links``: ``"rods"``, ``"points"``, or ``"general"`` with ``com`` and ``inertia``."""
     extra: Dict[str, Any] = {"damping": damping, "friction": friction, "cart": cart}
     if g is not None:
         extra["g"] = g
     if friction_velocity is not None:
         extra["friction_velocity"] = friction_velocity
     lengths_a, masses_a = per_link(lengths, "lengths", n), per_link(masses, "masses", n)
+    if (com is not None or inertia is not None) and links != "general":
+        raise InputError(f"com and inertia need links='general', got links={links!r}")
     if links == "rods":
         return Chain.rods(lengths_a, masses_a, **extra)
     if links == "points":
         return Chain(lengths_a, masses_a, **extra)
-    raise InputError(f"links must be 'rods' or 'points', got {links!r}")
+    if links == "general":
+        if com is None or inertia is None:
+            raise InputError("links='general' needs com (each centre of mass from its joint) and inertia (about it)")
+        return Chain(lengths_a, masses_a, com=per_link(com, "com", n), inertia=per_link(inertia, "inertia", n), **extra)
+    raise InputError(f"links must be 'rods', 'points' or 'general', got {links!r}")
 
 
 def default_step(n: int, upright: bool) -> float:

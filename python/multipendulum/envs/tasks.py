@@ -146,11 +146,12 @@ class Acrobot(Task):
     pivot by ``goal`` times the chain's length (0.5: Acrobot's "one link above the pivot")."""
 
     name = "multipendulum/Acrobot-v0"
-    KEYWORDS = ("n", "lengths", "masses", "links", "g", "damping", "friction", "friction_velocity", "actuated",
+    KEYWORDS = ("n", "lengths", "masses", "links", "com", "inertia", "g", "damping", "friction", "friction_velocity",
+                "actuated",
                 "action_type", "max_torque", "dt", "substeps", "method", "goal", "low", "high")
 
     def __init__(self, n: int = 2, lengths: object = 1.0, masses: object = 1.0, links: str = "rods",
-                 g: Optional[float] = None, damping: object = None, friction: object = None,
+                 com: object = None, inertia: object = None, g: Optional[float] = None, damping: object = None, friction: object = None,
                  friction_velocity: Optional[float] = None, actuated: object = "last",
                  action_type: str = "continuous", max_torque: object = 1.0, dt: float = 0.2,
                  substeps: Optional[int] = None, method: str = "rk4", goal: float = 0.5,
@@ -158,7 +159,8 @@ class Acrobot(Task):
         super().__init__()
         refuse_unknown(self.name, unknown, self.KEYWORDS + ("render_mode", "max_episode_steps"))
         self.n = count(n, "n")
-        self.chain = build_chain(self.n, lengths, masses, links, g, damping, friction, friction_velocity)
+        self.chain = build_chain(self.n, lengths, masses, links, g, damping, friction, friction_velocity,
+                                 com=com, inertia=inertia)
         self.dt, self.substeps, self.method = stepping(dt, substeps, method, self.n, upright=False)
         self.joints = _joint_set(actuated, self.n)
         k = len(self.joints)
@@ -230,12 +232,12 @@ class CartPole(Task):
     terminated only when the cart leaves the track."""
 
     name = "multipendulum/CartPole-v0"
-    KEYWORDS = ("n", "lengths", "masses", "links", "cart_mass", "cart_damping", "g", "damping", "friction",
+    KEYWORDS = ("n", "lengths", "masses", "links", "com", "inertia", "cart_mass", "cart_damping", "g", "damping", "friction",
                 "friction_velocity", "max_force", "dt", "substeps", "method", "task", "x_limit", "angle_limit",
                 "low", "high")
 
     def __init__(self, n: int = 1, lengths: object = 1.0, masses: object = 0.1, links: str = "rods",
-                 cart_mass: float = 1.0, cart_damping: float = 0.0, g: Optional[float] = None,
+                 com: object = None, inertia: object = None, cart_mass: float = 1.0, cart_damping: float = 0.0, g: Optional[float] = None,
                  damping: object = None, friction: object = None, friction_velocity: Optional[float] = None,
                  max_force: float = 10.0, dt: float = 0.02, substeps: Optional[int] = None, method: str = "rk4",
                  task: str = "balance", x_limit: float = 2.4, angle_limit: float = 12 * math.pi / 180,
@@ -244,7 +246,8 @@ class CartPole(Task):
         refuse_unknown(self.name, unknown, self.KEYWORDS + ("render_mode", "max_episode_steps"))
         self.n = count(n, "n")
         cart = Cart(cart_mass, damping=cart_damping)
-        self.chain = build_chain(self.n, lengths, masses, links, g, damping, friction, friction_velocity, cart)
+        self.chain = build_chain(self.n, lengths, masses, links, g, damping, friction, friction_velocity, cart,
+                                 com=com, inertia=inertia)
         if task not in ("balance", "swingup"):
             raise InputError(f"task must be 'balance' or 'swingup', got {task!r}")
         self.task = task
