@@ -208,7 +208,7 @@ class Acrobot(Task):
     def outcome(self, states: Array, obs: Array) -> Tuple[Array, npt.NDArray[np.bool_]]:
         height = -(obs[:, :self.n] @ self._lengths)  # obs starts with cos theta
         terminated = height > self.goal * self.reach
-        return terminated - 1.0, terminated
+        return terminated.astype(np.float64) - 1.0, terminated
 
 
 def as_fraction(goal: object) -> float:
