@@ -1,6 +1,7 @@
 //! Chaos tools: Lyapunov exponents from the variational equations, and first-flip times of
 //! ensembles (the flip-time "fractal") with the energy bound that forbids flips.
 pub mod flipkernel;
+pub mod indicators;
 
 use crate::dynamics::general::{Load, TANGENT_SCRATCH};
 use crate::dynamics::system::{singular, ChainSystem, Form, OdeSystem, NON_FINITE};
@@ -14,19 +15,40 @@ use crate::par::*;
 use crate::watch::Watch;
 
 /// The Lagrangian form with `k` tangent vectors riding along:
-/// `y = [theta, omega, (d_theta, d_omega) x k]`.
+/// `y = [theta, omega, (d_theta, d_omega) x k]`, and with `megno` MEGNO's two integrals after
+/// them (see [`indicators`]).
 struct Tangent<'c> {
     chain: &'c Chain,
     torque: Builtin,
     k: usize,
+    megno: bool,
     ws: Workspace,
     tau: Vec<f64>,
     scratch: Vec<f64>,
 }
 
+impl<'c> Tangent<'c> {
+    fn new(chain: &'c Chain, torque: Builtin, k: usize, megno: bool) -> Self {
+        let n = chain.n();
+        Tangent { chain, torque, k, megno, ws: Workspace::new(n), tau: vec![0.0; n], scratch: vec![0.0; TANGENT_SCRATCH * n] }
+    }
+
+    /// MEGNO's integrands (Cincotta & Simo 2000) from the first tangent vector `d` and its rate:
+    /// `y' = t (d' . d) / (d . d)` and `w' = 2 y / t`, so that `Y = 2 y / t` and `<Y> = w / t`.
+    /// The ratio does not depend on the vector's length, which may be renormalised freely.
+    fn megno_rates(&self, t: f64, y: &[f64], dy: &mut [f64]) {
+        let n2 = 2 * self.chain.n();
+        let (v, dv) = (&y[n2..2 * n2], &dy[n2..2 * n2]);
+        let ratio = dv.iter().zip(v).map(|(a, b)| a * b).sum::<f64>() / v.iter().map(|a| a * a).sum::<f64>();
+        let m = n2 * (1 + self.k);
+        dy[m] = t * ratio;
+        dy[m + 1] = if t > 0.0 { 2.0 * y[m] / t } else { 0.0 };
+    }
+}
+
 impl OdeSystem for Tangent<'_> {
     fn dim(&self) -> usize {
-        2 * self.chain.n() * (1 + self.k)
+        2 * self.chain.n() * (1 + self.k) + 2 * usize::from(self.megno)
     }
 
     fn rhs(&mut self, t: f64, y: &[f64], dy: &mut [f64]) -> Result<()> {
@@ -50,6 +72,9 @@ impl OdeSystem for Tangent<'_> {
                     .tangent_general(theta, omega, (&head[n..], 0.0), &load, (&v[..n], &v[n..], 0.0), &mut dv[n..], &mut self.scratch, &mut self.ws)
                     .map_err(fail)?;
             }
+            if self.megno {
+                self.megno_rates(t, y, dy);
+            }
             return Ok(());
         }
         self.chain.accelerations_into(theta, omega, &self.tau, &mut head[n..], &mut self.ws).map_err(fail)?;
@@ -60,6 +85,9 @@ impl OdeSystem for Tangent<'_> {
             self.chain
                 .tangent_accelerations_into(theta, omega, &head[n..], &v[..n], &v[n..], &mut dv[n..], &mut self.scratch, &mut self.ws)
                 .map_err(fail)?;
+        }
+        if self.megno {
+            self.megno_rates(t, y, dy);
         }
         Ok(())
     }
@@ -112,7 +140,7 @@ pub fn lyapunov(
             "Lyapunov exponents are computed for chains on a fixed pivot, not on a cart (the cart's position is a neutral direction)",
         ));
     }
-    let mut sys = Tangent { chain, torque, k, ws: Workspace::new(n), tau: vec![0.0; n], scratch: vec![0.0; TANGENT_SCRATCH * n] };
+    let mut sys = Tangent::new(chain, torque, k, false);
     let d = sys.dim();
     let mut y = vec![0.0; d];
     y[..n].copy_from_slice(theta0);
@@ -246,7 +274,7 @@ fn check_flips(chain: &Chain, theta0: &[f64], omega0: &[f64], t_max: f64, dt: f6
 /// pendulum): beyond it a request would look like a hang.
 pub const MAX_STEPS: f64 = 1e9;
 
-fn check_steps(steps: f64, what: &str) -> Result<()> {
+pub(crate) fn check_steps(steps: f64, what: &str) -> Result<()> {
     if steps > MAX_STEPS {
         return Err(Error::input(format!(
             "{what} = {steps:.3e} steps per trajectory, more than {MAX_STEPS:.0e}; use a larger dt or a shorter time"
