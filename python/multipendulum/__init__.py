@@ -18,6 +18,7 @@ from ._simulate import DEFAULTS, METHOD_INFO, METHODS, Crossing, Event, EventRec
 from ._torque import Sinusoid, Table
 from .checkpoint import load_checkpoint
 from .chaos import EnsembleResult, FlipMap, LyapunovResult, ensemble, PoincareSection, plot_poincare, poincare, flip_energy_threshold, flip_map, flip_times, lyapunov, trustworthy_until
+from .chaos import INDICATORS, IndicatorMap, IndicatorResult, fli, gali, indicator, indicator_map, megno, sali
 from .errors import InputError, IntegrationError
 from .modes import NormalModes, linearize, normal_modes
 from .sweeps import open_flip_map, sweep, sweep_flip_map
@@ -32,6 +33,7 @@ __all__ = [
     "normal_modes", "NormalModes", "linearize", "animate_mode", "plot_modes",
     "sweep", "sweep_flip_map", "open_flip_map", "plot_flip_map",
     "ensemble", "EnsembleResult", "poincare", "PoincareSection", "plot_poincare", "lyapunov", "LyapunovResult", "trustworthy_until", "flip_energy_threshold", "flip_times", "flip_map", "FlipMap",
+    "INDICATORS", "indicator", "IndicatorResult", "megno", "fli", "sali", "gali", "indicator_map", "IndicatorMap",
 ]
 
 

@@ -12,7 +12,7 @@ _Array = npt.ArrayLike
 
 __all__ = ["__version__", "InputError", "IntegrationError", "Torque", "Chain", "simulate", "checkpoint_time", "Event",
            "lyapunov", "first_flips", "flip_energy_threshold", "METHODS", "METHOD_INFO", "DEFAULTS", "LIMITS", "FORMS",
-           "ALGORITHMS", "check_memory", "Axis", "CartForce", "axis_eval", "Steppers"]
+           "ALGORITHMS", "check_memory", "Axis", "CartForce", "axis_eval", "Steppers", "indicator", "indicators", "INDICATORS"]
 
 __version__: str
 METHODS: List[str]
@@ -21,6 +21,7 @@ DEFAULTS: Dict[str, Any]
 LIMITS: Dict[str, float]
 FORMS: List[str]
 ALGORITHMS: Dict[str, Optional[int]]
+INDICATORS: List[str]
 
 class InputError(ValueError): ...
 
@@ -154,4 +155,10 @@ def lyapunov(chain: Chain, theta0: Sequence[float], omega0: Sequence[float], t_e
 def first_flips(chain: Chain, theta0: _F64, omega0: _F64, t_max: float, *, dt: float, link: Optional[int] = None,
                 torque: Optional[Torque] = None, progress: Optional[Callable[[float], Any]] = None) -> _F64: ...
 def flip_energy_threshold(chain: Chain, link: Optional[int] = None) -> float: ...
+def indicator(chain: Chain, theta0: Sequence[float], omega0: Sequence[float], t_end: float, *, dt: float, name: str,
+              k: Optional[int] = None, torque: Optional[Torque] = None, deviations: Optional[Sequence[float]] = None,
+              record_every: int = 1, progress: Optional[Callable[[float], Any]] = None) -> Tuple[float, _F64, _F64]: ...
+def indicators(chain: Chain, theta0: _F64, omega0: _F64, t_end: float, *, dt: float, name: str, k: Optional[int] = None,
+               torque: Optional[Torque] = None, deviations: Optional[Sequence[float]] = None,
+               progress: Optional[Callable[[float], Any]] = None) -> _F64: ...
 def check_memory(bytes: float, what: str, advice: str) -> None: ...

@@ -14,6 +14,7 @@ from ._convert import Integer, as_float, as_floats
 from ._progress import Progress, reporter
 from ._progress import check as _check_progress
 from ._torque import TorqueLike, core_torque, normalise_torque
+from ._indicators import INDICATORS, IndicatorResult, fli, gali, indicator, megno, sali
 from ._lyapunov import LyapunovResult, _link, lyapunov, trustworthy_until
 from ._simulate import DEFAULTS, Crossing, EventRecord, Flip, simulate
 from .errors import InputError
@@ -29,7 +30,8 @@ if TYPE_CHECKING:
 #: ``"theta"`` or ``"omega"`` of a link.
 Vary = Tuple[str, Integer, str, Integer]
 
-__all__ = ["EnsembleResult", "ensemble", "PoincareSection", "poincare", "plot_poincare", "LyapunovResult", "lyapunov", "trustworthy_until", "flip_energy_threshold", "flip_times", "flip_map", "FlipMap"]
+__all__ = ["INDICATORS", "IndicatorResult", "indicator", "megno", "fli", "sali", "gali", "IndicatorMap",
+           "indicator_map", "EnsembleResult", "ensemble", "PoincareSection", "poincare", "plot_poincare", "LyapunovResult", "lyapunov", "trustworthy_until", "flip_energy_threshold", "flip_times", "flip_map", "FlipMap"]
 
 
 def flip_energy_threshold(chain: Chain, link: Optional[Integer] = None) -> float:
@@ -133,6 +135,47 @@ def flip_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_max: float = 10
     threshold = flip_threshold(chain, link, torque)
     allowed = cast("npt.NDArray[np.bool_]", chain.energy(theta0, omega0) >= threshold)  # theta0 has a grid's axes
     return FlipMap(x, y, times, allowed, float(t_max), threshold)
+
+@dataclass(frozen=True)
+class IndicatorMap:
+    """A chaos indicator ``values[i, j]`` at ``t_end`` for the initial values ``x[j]`` (of the
+    first varied quantity) and ``y[i]``."""
+
+    x: npt.NDArray[np.float64]
+    y: npt.NDArray[np.float64]
+    values: npt.NDArray[np.float64]
+    indicator: str
+    t_end: float
+
+
+def indicator_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_end: float = 50.0, indicator: str = "megno",
+                  k: Optional[Integer] = None, dt: float = 0.005, vary: Vary = ("theta", 0, "theta", 1),
+                  base_theta: Optional[npt.ArrayLike] = None, base_omega: Optional[npt.ArrayLike] = None,
+                  torque: Optional[TorqueLike] = None, progress: Progress = None) -> IndicatorMap:
+    """A chaos-indicator map over a grid of two initial values, as :func:`flip_map` varies them
+    (``vary``, ``base_theta``, ``base_omega``); each cell :func:`indicator` at ``t_end``, in
+    parallel.
+
+    >>> import multipendulum as mp
+    >>> m = mp.indicator_map(mp.Chain([1, 1], [1, 1]), [0.2, 2.0], [0.2, 2.5], t_end=40.0)
+    >>> bool(m.values[0, 0] < 3 < m.values[1, 1])       # regular near rest, chaotic high up
+    True
+    """
+    check_chain(chain)
+    _check_progress(progress)
+    x, y = as_floats(x, "x").ravel(), as_floats(y, "y").ravel()
+    n = chain.n
+    _core.check_memory(float(x.size) * y.size * (2 * n + 1) * 8.0, f"an indicator map of {y.size} x {x.size} cells",
+                       "use fewer points in x and y")
+    th_base = np.zeros(n) if base_theta is None else as_state(base_theta, "base_theta", n)
+    om_base = np.zeros(n) if base_omega is None else as_state(base_omega, "base_omega", n)
+    theta0, omega0 = _grid(y, x, _check_vary(vary, n), th_base, om_base)
+    values = indicator_fn(chain, theta0, omega0, t_end, indicator, k=k, dt=dt, torque=torque, progress=progress)
+    return IndicatorMap(x, y, cast("npt.NDArray[np.float64]", values), indicator, float(t_end))
+
+
+indicator_fn = indicator
+
 
 @dataclass(frozen=True)
 class PoincareSection:

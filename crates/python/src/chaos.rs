@@ -1,4 +1,5 @@
-//! Chaos tools of the core: Lyapunov exponents and first-flip times, interruptible.
+//! Chaos tools of the core: Lyapunov exponents, chaos indicators (MEGNO, FLI, SALI, GALI) and
+//! first-flip times, interruptible.
 use multipendulum_core as core;
 use numpy::{PyArray1, PyReadonlyArray1};
 use pyo3::prelude::*;
@@ -13,7 +14,70 @@ pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(lyapunov, m)?)?;
     m.add_function(wrap_pyfunction!(first_flips, m)?)?;
     m.add_function(wrap_pyfunction!(flip_energy_threshold, m)?)?;
+    m.add_function(wrap_pyfunction!(indicator, m)?)?;
+    m.add_function(wrap_pyfunction!(indicators, m)?)?;
+    m.add("INDICATORS", core::chaos::indicators::Indicator::NAMES.to_vec())?;
     Ok(())
+}
+
+/// A chaos indicator of one run with its history; see `multipendulum_core::chaos::indicators`.
+#[pyfunction]
+#[pyo3(signature = (chain, theta0, omega0, t_end, *, dt, name, k=None, torque=None, deviations=None, record_every=1, progress=None))]
+#[allow(clippy::too_many_arguments)]
+fn indicator<'py>(
+    py: Python<'py>,
+    chain: &PyChain,
+    theta0: Vec<f64>,
+    omega0: Vec<f64>,
+    t_end: f64,
+    dt: f64,
+    name: &str,
+    k: Option<usize>,
+    torque: Option<PyRef<'py, PyTorque>>,
+    deviations: Option<Vec<f64>>,
+    record_every: u64,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<(f64, Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>)> {
+    use core::chaos::indicators::{indicator, Indicator};
+    let c = &chain.inner;
+    let which = Indicator::parse(name, k).map_err(|e| to_py(py, e))?;
+    let torque = builtin_only(py, c.n(), torque.as_deref(), "chaos indicators")?;
+    let watch = Watch::new();
+    let out = interruptible(py, &watch, progress.as_ref(), false, || {
+        indicator(c, &theta0, &omega0, t_end, dt, which, &torque, deviations.as_deref(), record_every, &watch)
+    })?
+    .map_err(|e| to_py(py, e))?;
+    Ok((out.value, vec_out(py, out.times), vec_out(py, out.values)))
+}
+
+/// A chaos indicator at `t_end` of each row of flat `theta0`/`omega0`, in parallel.
+#[pyfunction]
+#[pyo3(signature = (chain, theta0, omega0, t_end, *, dt, name, k=None, torque=None, deviations=None, progress=None))]
+#[allow(clippy::too_many_arguments)]
+fn indicators<'py>(
+    py: Python<'py>,
+    chain: &PyChain,
+    theta0: PyReadonlyArray1<'py, f64>,
+    omega0: PyReadonlyArray1<'py, f64>,
+    t_end: f64,
+    dt: f64,
+    name: &str,
+    k: Option<usize>,
+    torque: Option<PyRef<'py, PyTorque>>,
+    deviations: Option<Vec<f64>>,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<Bound<'py, PyArray1<f64>>> {
+    use core::chaos::indicators::{indicators, Indicator};
+    let c = &chain.inner;
+    let which = Indicator::parse(name, k).map_err(|e| to_py(py, e))?;
+    let torque = builtin_only(py, c.n(), torque.as_deref(), "chaos indicators")?;
+    let (theta0, omega0) = (slice("theta0", &theta0)?, slice("omega0", &omega0)?);
+    let watch = Watch::units((theta0.len() / c.n().max(1)) as u64);
+    let out = interruptible(py, &watch, progress.as_ref(), false, || {
+        indicators(c, theta0, omega0, t_end, dt, which, &torque, deviations.as_deref(), &watch)
+    })?
+    .map_err(|e| to_py(py, e))?;
+    Ok(vec_out(py, out))
 }
 
 /// Lyapunov exponents by the variational equations; see `multipendulum_core::chaos::lyapunov`.

@@ -1,0 +1,123 @@
+"""Chaos indicators from the variational equations, computed in the core: MEGNO, FLI (and the
+orthogonal FLI), SALI and GALI_k, for one state (with the indicator's history) or a batch of
+states (the values at ``t_end``, in parallel). Re-exported by :mod:`multipendulum.chaos` and the
+package. The definitions and their references are in the core's
+``crates/core/src/chaos/indicators.rs``."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional, Union
+
+import numpy as np
+import numpy.typing as npt
+
+import multipendulum._core as _core
+from ._chain import Chain, as_state, check_chain
+from ._convert import Integer, as_float, as_floats
+from ._progress import Progress, reporter
+from ._torque import TorqueLike, core_torque, normalise_torque
+from .errors import InputError
+
+#: The indicators' names, as the core states them.
+INDICATORS = tuple(_core.INDICATORS)
+
+
+@dataclass(frozen=True)
+class IndicatorResult:
+    """An indicator of one run: ``value`` at ``t_end``, and its history ``values`` at ``times``."""
+
+    name: str
+    value: float
+    times: npt.NDArray[np.float64]
+    values: npt.NDArray[np.float64]
+
+
+def indicator(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: float, indicator: str = "megno",
+              k: Optional[Integer] = None, dt: float = 0.005, torque: Optional[TorqueLike] = None,
+              deviations: Optional[npt.ArrayLike] = None, record_every: Integer = 1,
+              progress: Progress = None) -> Union[IndicatorResult, npt.NDArray[np.float64]]:
+    """A chaos indicator of the chain from ``(theta0, omega0)``, integrated with rk4 at step ``dt``
+    together with the variational equations (damping and friction included; not on a cart).
+
+    ``indicator``: ``"megno"`` (time-averaged MEGNO ``<Y>``: -> 2 on regular orbits, ~ lambda t / 2
+    on chaotic ones), ``"fli"`` (fast Lyapunov indicator ``sup ln |d|``), ``"ofli"`` (its
+    orthogonal variant), ``"sali"`` (-> 0 exponentially on chaotic orbits, positive on regular
+    ones) or ``"gali"`` with order ``k`` (2 <= k <= 2N). The deviation vectors start from a fixed
+    generic orthonormal set (reproducible), or ``deviations`` (the indicator's number of
+    vectors, each of 2N values ``(d_theta, d_omega)``). ``torque`` may depend on time (a built-in).
+
+    One state (shape (N,)): an :class:`IndicatorResult` with the history every ``record_every``
+    steps. A batch (shape (..., N)): the values at ``t_end``, shape (...), in parallel.
+
+    >>> import multipendulum as mp
+    >>> chain = mp.Chain([1, 1], [1, 1])
+    >>> regular = mp.megno(chain, [0.3, 0.2], [0, 0], t_end=500.0)
+    >>> bool(1.5 < regular.value < 2.5)
+    True
+    >>> chaotic = mp.megno(chain, [2.0, 2.5], [0, 0], t_end=100.0)   # ~ lambda t / 2
+    >>> bool(chaotic.value > 30)
+    True
+    """
+    check_chain(chain)
+    if not isinstance(indicator, str) or indicator not in INDICATORS:
+        raise InputError(f"indicator must be one of {', '.join(INDICATORS)}, got {indicator!r}")
+    n = chain.n
+    if indicator == "gali":
+        if k is None or isinstance(k, bool) or not isinstance(k, (int, np.integer)):
+            raise InputError(f"gali needs its order k, an integer between 2 and 2N = {2 * n}, got {k!r}")
+        k_ = int(k)
+    elif k is not None:
+        raise InputError(f"k is GALI's order; {indicator} takes none")
+    else:
+        k_ = None
+    if isinstance(record_every, bool) or not isinstance(record_every, (int, np.integer)) or not 1 <= record_every < 2**64:
+        raise InputError(f"record_every must be a positive integer (steps), got {record_every!r}")
+    th0, om0 = as_state(theta0, "theta0", n), as_state(omega0, "omega0", n)
+    if th0.shape != om0.shape:
+        raise InputError(f"theta0 and omega0 must have the same shape, got {th0.shape} and {om0.shape}")
+    dev = None if deviations is None else as_floats(deviations, "deviations").ravel().tolist()
+    spec, joint = normalise_torque(torque, None, n)
+    t_end_, dt_ = as_float(t_end, "t_end"), as_float(dt, "dt")
+    with reporter(progress, indicator) as report:
+        if th0.ndim == 1:
+            value, times, values = _core.indicator(chain._c, th0.tolist(), om0.tolist(), t_end_, dt=dt_, name=indicator,
+                                                   k=k_, torque=core_torque(spec, joint), deviations=dev,
+                                                   record_every=int(record_every), progress=report)
+            return IndicatorResult(indicator, value, times, values)
+        out = _core.indicators(chain._c, np.ascontiguousarray(th0).ravel(), np.ascontiguousarray(om0).ravel(), t_end_,
+                               dt=dt_, name=indicator, k=k_, torque=core_torque(spec, joint), deviations=dev,
+                               progress=report)
+    return out.reshape(th0.shape[:-1])
+
+
+def megno(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: float, dt: float = 0.005,
+          torque: Optional[TorqueLike] = None, record_every: Integer = 1,
+          progress: Progress = None) -> Union[IndicatorResult, npt.NDArray[np.float64]]:
+    """Time-averaged MEGNO ``<Y>`` (Cincotta & Simo 2000): :func:`indicator` with ``"megno"``."""
+    return indicator(chain, theta0, omega0, t_end, "megno", dt=dt, torque=torque, record_every=record_every,
+                     progress=progress)
+
+
+def fli(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: float, dt: float = 0.005,
+        orthogonal: bool = False, torque: Optional[TorqueLike] = None, record_every: Integer = 1,
+        progress: Progress = None) -> Union[IndicatorResult, npt.NDArray[np.float64]]:
+    """Fast Lyapunov indicator (Froeschle et al. 1997), or with ``orthogonal`` the OFLI (Fouchard
+    et al. 2002): :func:`indicator` with ``"fli"`` / ``"ofli"``."""
+    return indicator(chain, theta0, omega0, t_end, "ofli" if orthogonal else "fli", dt=dt, torque=torque,
+                     record_every=record_every, progress=progress)
+
+
+def sali(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: float, dt: float = 0.005,
+         torque: Optional[TorqueLike] = None, record_every: Integer = 1,
+         progress: Progress = None) -> Union[IndicatorResult, npt.NDArray[np.float64]]:
+    """Smaller alignment index (Skokos 2001): :func:`indicator` with ``"sali"``."""
+    return indicator(chain, theta0, omega0, t_end, "sali", dt=dt, torque=torque, record_every=record_every,
+                     progress=progress)
+
+
+def gali(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: float, k: Integer, dt: float = 0.005,
+         torque: Optional[TorqueLike] = None, record_every: Integer = 1,
+         progress: Progress = None) -> Union[IndicatorResult, npt.NDArray[np.float64]]:
+    """Generalized alignment index GALI_k (Skokos et al. 2007), ``2 <= k <= 2N``."""
+    return indicator(chain, theta0, omega0, t_end, "gali", k=k, dt=dt, torque=torque, record_every=record_every,
+                     progress=progress)
