@@ -95,6 +95,13 @@ def test_gali_decays_with_the_sums_of_exponent_differences_on_a_chaotic_orbit():
         assert rate == pytest.approx(sum(spec[0] - spec[i] for i in range(1, k)), rel=0.3), (k, rate, spec)
 
 
+def test_the_lyapunov_indicator_is_the_largest_exponent():
+    """One renormalised vector (a generic start) against mp.lyapunov's k = 1 (unit start)."""
+    lam = mp.lyapunov(DOUBLE, CHAOTIC, ZERO, t_end=300.0, k=1, renorm_every=1).largest
+    assert mp.indicator(DOUBLE, CHAOTIC, ZERO, 300.0, "lyapunov").value == pytest.approx(lam, rel=0.05)
+    assert abs(mp.indicator(DOUBLE, REGULAR, ZERO, 1000.0, "lyapunov", dt=0.01).value) < 0.02
+
+
 def test_a_batch_is_its_rows_and_a_map_is_its_cells():
     theta = np.array([REGULAR, CHAOTIC, [1.0, -0.5]])
     batch = mp.indicator(DOUBLE, theta, np.zeros_like(theta), 20.0, "megno")
@@ -116,7 +123,7 @@ def test_damping_is_in_the_variational_equations():
 
 
 def test_bad_requests_are_refused_by_name():
-    with pytest.raises(mp.InputError, match="indicator must be one of megno, fli, ofli, sali, gali, got 'lyap'"):
+    with pytest.raises(mp.InputError, match="indicator must be one of megno, fli, ofli, sali, gali, lyapunov, got 'lyap'"):
         mp.indicator(DOUBLE, REGULAR, ZERO, 1.0, "lyap")
     with pytest.raises(mp.InputError, match=r"GALI's order k must be between 2 and 2N = 4, got 5"):
         mp.gali(DOUBLE, REGULAR, ZERO, 1.0, k=5)

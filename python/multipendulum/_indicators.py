@@ -42,7 +42,8 @@ def indicator(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end:
     ``indicator``: ``"megno"`` (time-averaged MEGNO ``<Y>``: -> 2 on regular orbits, ~ lambda t / 2
     on chaotic ones), ``"fli"`` (fast Lyapunov indicator ``sup ln |d|``), ``"ofli"`` (its
     orthogonal variant), ``"sali"`` (-> 0 exponentially on chaotic orbits, positive on regular
-    ones) or ``"gali"`` with order ``k`` (2 <= k <= 2N). The deviation vectors start from a fixed
+    ones), ``"gali"`` with order ``k`` (2 <= k <= 2N) or ``"lyapunov"`` (the largest Lyapunov
+    exponent's finite-time estimate, for maps). The deviation vectors start from a fixed
     generic orthonormal set (reproducible), or ``deviations`` (the indicator's number of
     vectors, each of 2N values ``(d_theta, d_omega)``). ``torque`` may depend on time (a built-in).
 

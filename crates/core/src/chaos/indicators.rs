@@ -8,6 +8,8 @@
 //!   flow, which removes the linear growth along a regular orbit.
 //! - **SALI** (Skokos 2001): `min(|u + v|, |u - v|)` of two unit deviation vectors; tends to 0
 //!   (exponentially, at `lambda_1 - lambda_2`) on chaotic orbits, stays positive on regular ones.
+//! - **The largest Lyapunov exponent** (Benettin et al. 1980): `ln |d(t)| / t` of one renormalised
+//!   vector, the finite-time estimate (what [`super::lyapunov`] gives with `k = 1`, for maps).
 //! - **GALI_k** (Skokos, Bountis & Antonopoulos 2007): the volume of the parallelepiped of `k`
 //!   unit deviation vectors; on chaotic orbits it decays like
 //!   `exp(-sum_{i=2..k} (lambda_1 - lambda_i) t)`, on regular orbits of an N-degree-of-freedom
@@ -37,11 +39,13 @@ pub enum Indicator {
     Sali,
     /// GALI_k, `2 <= k <= 2N`.
     Gali(usize),
+    /// The largest Lyapunov exponent's finite-time estimate.
+    Lyapunov,
 }
 
 impl Indicator {
     /// The names [`Indicator::parse`] takes, stated once.
-    pub const NAMES: [&'static str; 5] = ["megno", "fli", "ofli", "sali", "gali"];
+    pub const NAMES: [&'static str; 6] = ["megno", "fli", "ofli", "sali", "gali", "lyapunov"];
 
     /// The indicator called `name`; `k` is GALI's order (ignored by the others).
     pub fn parse(name: &str, k: Option<usize>) -> Result<Self> {
@@ -50,6 +54,7 @@ impl Indicator {
             "fli" => Ok(Indicator::Fli),
             "ofli" => Ok(Indicator::Ofli),
             "sali" => Ok(Indicator::Sali),
+            "lyapunov" => Ok(Indicator::Lyapunov),
             "gali" => k.map(Indicator::Gali).ok_or_else(|| Error::input("gali needs its order k (2 <= k <= 2N)")),
             other => Err(Error::input(format!("indicator must be one of {}, got {other:?}", Self::NAMES.join(", ")))),
         }
@@ -58,7 +63,7 @@ impl Indicator {
     /// Deviation vectors it follows.
     pub fn vectors(self) -> usize {
         match self {
-            Indicator::Megno | Indicator::Fli | Indicator::Ofli => 1,
+            Indicator::Megno | Indicator::Fli | Indicator::Ofli | Indicator::Lyapunov => 1,
             Indicator::Sali => 2,
             Indicator::Gali(k) => k,
         }
@@ -288,6 +293,10 @@ fn run(
                 fli = fli.max(log_growth);
                 fli
             }
+            Indicator::Lyapunov => {
+                log_growth += norms[0].ln();
+                log_growth / t1
+            }
             Indicator::Ofli => {
                 log_growth += norms[0].ln();
                 sys.rhs(t1, &y, &mut flow)?;
@@ -346,6 +355,6 @@ mod tests {
         assert_eq!(e(Indicator::Gali(1), None), "GALI's order k must be between 2 and 2N = 4, got 1");
         assert_eq!(e(Indicator::Sali, Some(&[1.0; 4])), "deviations must have shape (2, 2N = 4), got 4 values");
         assert_eq!(e(Indicator::Sali, Some(&[1.0, 0.0, 0.0, 0.0, 2.0, 0.0, 0.0, 0.0])), "the deviation vectors must be linearly independent");
-        assert_eq!(Indicator::parse("lyap", None).unwrap_err().to_string(), "indicator must be one of megno, fli, ofli, sali, gali, got \"lyap\"");
+        assert_eq!(Indicator::parse("lyap", None).unwrap_err().to_string(), "indicator must be one of megno, fli, ofli, sali, gali, lyapunov, got \"lyap\"");
     }
 }
