@@ -168,13 +168,15 @@ def test_driven_and_damped_episodes_keep_their_energy_balance():
 
 def test_the_step_is_substeps_of_the_chosen_method():
     """dt and substeps as given: one env step of rk4 equals mp.simulate's rk4 over dt in
-    dt / substeps steps, bit for bit (the same core driver)."""
+    dt / substeps steps."""
     env = gym.make(IDS[0], n=2, dt=0.1, substeps=4, max_torque=0.5).unwrapped
     env.reset(options={"state": [0.3, -0.2, 0.1, 0.4]})
     env.step(np.array([0.6]))
     sol = mp.simulate(env.task.chain, [0.3, -0.2], [0.1, 0.4], t_end=0.1, method="rk4", dt=0.025,
                       joint_torque=[0.0, 0.3])
-    np.testing.assert_array_equal(env.state, np.concatenate([sol.theta[-1], sol.omega[-1]]))
+    # The env's ideal chain steps in SIMD lanes (their own sin/cos): the same steps to round-off.
+    assert env.unwrapped._engine._st.route.startswith("lanes:")
+    np.testing.assert_allclose(env.state, np.concatenate([sol.theta[-1], sol.omega[-1]]), rtol=0, atol=1e-12)
     gauss = gym.make(IDS[0], method="gauss6").unwrapped
     gauss.reset(seed=0)
     for _ in range(50):
@@ -233,6 +235,24 @@ def test_the_vector_env_is_the_same_on_any_number_of_threads():
     outs = {subprocess.run([sys.executable, "-c", code], env={**os.environ, "RAYON_NUM_THREADS": str(t)},
                            capture_output=True, text=True, check=True).stdout for t in (1, 2)}
     assert len(outs) == 1
+
+
+def test_the_lanes_and_the_per_copy_route_agree_to_round_off():
+    """An ideal chain's copies step in SIMD lanes (every path the same bits); forced through a
+    stepper per copy (MULTIPENDULUM_LANES=scalar) they agree to round-off."""
+    code = ("import numpy as np, gymnasium as gym, multipendulum.envs\n"
+            "v = gym.make_vec('multipendulum/Acrobot-v0', num_envs=20, n=3, max_episode_steps=None)\n"
+            "v.reset(seed=0); rng = np.random.default_rng(0)\n"
+            "for _ in range(10): o = v.step(rng.uniform(-1, 1, (20, 1)))[0]\n"
+            "print(v.unwrapped._engine._st.route); print(' '.join(map(repr, o.ravel().tolist())))\n")
+    runs = {}
+    for route in ("auto", "portable", "scalar"):
+        out = subprocess.run([sys.executable, "-c", code], env={**os.environ, "MULTIPENDULUM_LANES": route},
+                             capture_output=True, text=True, check=True).stdout.splitlines()
+        runs[route] = (out[0], np.array([float(x) for x in out[1].split()]))
+    assert runs["scalar"][0] == "each" and runs["portable"][0] == "lanes:portable"
+    np.testing.assert_array_equal(runs["auto"][1], runs["portable"][1])  # the same bits on every path
+    np.testing.assert_allclose(runs["auto"][1], runs["scalar"][1], rtol=0, atol=1e-11)
 
 
 def test_disabled_autoreset_needs_a_masked_reset():

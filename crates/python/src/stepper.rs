@@ -45,6 +45,12 @@ impl PySteppers {
         self.inner.len()
     }
 
+    /// The route the copies take: "each" (a stepper per copy) or "lanes:<path>" (SIMD lanes).
+    #[getter]
+    fn route(&self) -> String {
+        self.inner.route()
+    }
+
     /// Values per copy in `states()`: theta (N), omega (N), then the cart's x, v.
     #[getter]
     fn state_len(&self) -> usize {

@@ -12,6 +12,7 @@
 //! `p_dot_a = tau_a - g h_a sin(theta_a) - omega_a sum_b K_ab sin(theta_a - theta_b) omega_b`.
 pub mod base;
 pub mod general;
+pub mod lanes;
 pub mod reference;
 pub mod rows;
 pub mod system;

@@ -4,6 +4,7 @@
 //! methods take whole steps of the grid `t_k = k dt`, so the run is the same however it is cut
 //! into pieces, and a target between grid points is reached to within one step; `dop853` lands
 //! on each target exactly.
+use super::bank::{self, Bank};
 use super::driver::Run;
 use super::energy::EnergyBalance;
 use super::simulate::{fill_rates, initial_state, Books, Settings, Terms};
@@ -199,11 +200,21 @@ impl<T: TorqueSource> Stepper<T> {
 /// Copies of one chain advanced together, each with its inputs held constant over a call (an
 /// environment's zero-order hold): joint-motor torques `u` (the motor at joint i turns link i
 /// and pushes back on link i-1, see [`Joint`]) and, with a cart, the force on the cart. Each
-/// copy is a [`Stepper`] of its own, with its own energy balance; the copies run in parallel,
-/// and each one's arithmetic is the same whatever the number of threads.
+/// copy has its own energy balance; the copies run in parallel, and each one's arithmetic is the
+/// same whatever the number of threads and the other copies.
+///
+/// Two routes: an ideal chain on rk4 (Lagrangian) goes eight copies to a group of SIMD lanes
+/// ([`super::bank`]); everything else, or `MULTIPENDULUM_LANES=scalar`, one [`Stepper`] per copy.
+/// The two agree to round-off (the lanes' own `sin`/`cos`).
 pub struct Steppers {
-    items: Vec<Stepper<Joint<Builtin>>>,
+    route: Route,
+    chain: Chain,
     settings: Settings,
+}
+
+enum Route {
+    Each(Vec<Stepper<Joint<Builtin>>>),
+    Lanes(Bank),
 }
 
 impl Steppers {
@@ -216,47 +227,72 @@ impl Steppers {
         if settings.drive.pivot.is_some() || settings.drive.force.is_some() {
             return Err(Error::input("steppers hold their own cart force and take no pivot motion"));
         }
+        let lanes = if bank::fits(chain, settings) { bank::requested()? } else { None };
         let mut settings = settings.clone();
         if chain.cart().is_some() {
             settings.drive.force = Some(Force::Builtin(Builtin::Constant(vec![0.0])));
         }
         settings.cart0 = [0.0; 2];
         let rest = vec![0.0; chain.n()];
-        let items = (0..count)
-            .map(|_| Stepper::new(chain.clone(), &rest, &rest, &settings, Joint(Builtin::Constant(rest.clone()))))
-            .collect::<Result<Vec<_>>>()?;
-        Ok(Steppers { items, settings })
+        let make = || Stepper::new(chain.clone(), &rest, &rest, &settings, Joint(Builtin::Constant(rest.clone())));
+        // The settings are checked as a stepper checks them, whichever route runs.
+        let first = make()?;
+        let route = match lanes {
+            Some(path) => Route::Lanes(Bank::new(chain, count, settings.dt.unwrap_or(f64::NAN), path)),
+            None => Route::Each(std::iter::once(Ok(first)).chain((1..count).map(|_| make())).collect::<Result<Vec<_>>>()?),
+        };
+        Ok(Steppers { route, chain: chain.clone(), settings })
     }
 
     pub fn len(&self) -> usize {
-        self.items.len()
+        match &self.route {
+            Route::Each(items) => items.len(),
+            Route::Lanes(bank) => bank.len(),
+        }
     }
 
     pub fn is_empty(&self) -> bool {
-        self.items.is_empty()
+        self.len() == 0
     }
 
     pub fn chain(&self) -> &Chain {
-        self.items[0].chain()
+        &self.chain
+    }
+
+    /// The route the copies take: `"each"`, or `"lanes:<path>"` (`portable`, `avx2`, `avx512`).
+    pub fn route(&self) -> String {
+        match &self.route {
+            Route::Each(_) => "each".to_string(),
+            Route::Lanes(bank) => format!("lanes:{}", bank.path().name()),
+        }
     }
 
     /// Values per copy in [`Steppers::states_into`]: `theta`, `omega`, then the cart's `x, v`.
     pub fn state_len(&self) -> usize {
-        2 * self.chain().n() + 2 * usize::from(self.chain().cart().is_some())
+        2 * self.chain.n() + 2 * usize::from(self.chain.cart().is_some())
     }
 
     /// Start copy `i` anew at t = 0 from `(theta0, omega0)` and the cart's `(x, v)`: a new
     /// episode, its energy balance and works from zero.
     pub fn reset(&mut self, i: usize, theta0: &[f64], omega0: &[f64], cart0: [f64; 2]) -> Result<()> {
-        let count = self.items.len();
+        let count = self.len();
         if i >= count {
             return Err(Error::input(format!("index {i} out of range for {count} copies")));
         }
         let mut settings = self.settings.clone();
         settings.cart0 = cart0;
-        let chain = self.items[i].chain().clone();
-        let zero = vec![0.0; chain.n()];
-        self.items[i] = Stepper::new(chain, theta0, omega0, &settings, Joint(Builtin::Constant(zero)))?;
+        match &mut self.route {
+            Route::Each(items) => {
+                let zero = vec![0.0; self.chain.n()];
+                items[i] = Stepper::new(self.chain.clone(), theta0, omega0, &settings, Joint(Builtin::Constant(zero)))?;
+            }
+            Route::Lanes(bank) => {
+                self.chain.check_state("theta0", theta0)?;
+                self.chain.check_state("omega0", omega0)?;
+                super::simulate::check_cart0(&self.chain, &settings)?;
+                bank.reset(i, theta0, omega0);
+            }
+        }
         Ok(())
     }
 
@@ -274,8 +310,8 @@ impl Steppers {
         if !(span.is_finite() && span > 0.0) {
             return Err(Error::input(format!("span must be > 0 and finite, got {span}")));
         }
-        let (count, n) = (self.items.len(), self.chain().n());
-        let want_forces = if self.chain().cart().is_some() { count } else { 0 };
+        let (count, n) = (self.len(), self.chain.n());
+        let want_forces = if self.chain.cart().is_some() { count } else { 0 };
         if torques.len() != count * n {
             return Err(Error::input(format!("torques must have count x N = {} values, got {}", count * n, torques.len())));
         }
@@ -291,6 +327,10 @@ impl Steppers {
         }
         check_finite("torques", torques)?;
         check_finite("forces", forces)?;
+        let items = match &mut self.route {
+            Route::Lanes(bank) => return bank.step(torques, span, active, states, balance),
+            Route::Each(items) => items,
+        };
         let one = |(i, (((st, u), row), bal)): (usize, (((&mut Stepper<Joint<Builtin>>, &[f64]), &mut [f64]), &mut [f64]))| -> Option<(usize, Error)> {
             if active.get(i) == Some(&false) {
                 st.report(row, bal);
@@ -312,9 +352,9 @@ impl Steppers {
         };
         // One copy runs here: a pool's hand-over would cost more than its step.
         let failed = if count == 1 {
-            one((0, (((&mut self.items[0], torques), states), balance)))
+            one((0, (((&mut items[0], torques), states), balance)))
         } else {
-            self.items
+            items
                 .par_iter_mut()
                 .zip(torques.par_chunks(n))
                 .zip(states.par_chunks_mut(k))
@@ -333,19 +373,26 @@ impl Steppers {
 
     /// Every copy's state, count x [`Steppers::state_len`] values.
     pub fn states_into(&mut self, out: &mut [f64]) {
-        let k = self.state_len();
-        let mut bal = [0.0; 3];
-        for (st, row) in self.items.iter_mut().zip(out.chunks_mut(k)) {
-            st.report(row, &mut bal);
-        }
+        let mut bal = vec![0.0; 3 * self.len()];
+        self.report_into(out, &mut bal);
     }
 
     /// Every copy's time, energy (lab frame) and energy-balance residual ([`Stepper::energy_error`]),
     /// count x 3 values.
     pub fn balance_into(&mut self, out: &mut [f64]) {
-        let mut row = vec![0.0; self.state_len()];
-        for (st, bal) in self.items.iter_mut().zip(out.chunks_mut(3)) {
-            st.report(&mut row, bal);
+        let mut rows = vec![0.0; self.state_len() * self.len()];
+        self.report_into(&mut rows, out);
+    }
+
+    fn report_into(&mut self, states: &mut [f64], balance: &mut [f64]) {
+        let k = self.state_len();
+        match &mut self.route {
+            Route::Each(items) => {
+                for ((st, row), bal) in items.iter_mut().zip(states.chunks_mut(k)).zip(balance.chunks_mut(3)) {
+                    st.report(row, bal);
+                }
+            }
+            Route::Lanes(bank) => bank.report_into(states, balance),
         }
     }
 }
@@ -354,6 +401,7 @@ impl Steppers {
 mod tests {
     use super::*;
     use crate::dynamics::torque::Builtin;
+    use crate::run::bank::Bank;
     use crate::run::simulate::simulate;
 
     fn settings(method: &str, dt: Option<f64>) -> Settings {
@@ -448,32 +496,71 @@ mod tests {
 
     #[test]
     fn steppers_are_steppers_held_constant_and_independent_of_the_batch() {
-        // Each copy of a batch is the single stepper with the same constant joint torque, bit
-        // for bit, whatever the other copies do; a masked copy does not move.
-        let chain = Chain::rods(&[1.0, 0.7], &[1.0, 0.5], 9.81).unwrap();
-        let s = settings("rk4", Some(0.01));
-        let mut batch = Steppers::new(&chain, 3, &s).unwrap();
-        let starts = [([0.3, -0.2], [0.1, 0.0]), ([2.0, 2.5], [0.0, 1.0]), ([0.0, 0.1], [0.0, 0.0])];
-        for (i, (th, om)) in starts.iter().enumerate() {
-            batch.reset(i, th, om, [0.0; 2]).unwrap();
+        // Each copy of a batch is the single stepper with the same constant joint torque (to
+        // round-off on the lanes, the same route for every copy), whatever the other copies do,
+        // and bit for bit the copy alone; a masked copy does not move.
+        for chain in [Chain::rods(&[1.0, 0.7], &[1.0, 0.5], 9.81).unwrap(), Chain::rods(&[1.0, 0.7, 0.4], &[1.0, 0.5, 0.2], 9.81).unwrap()] {
+            let n = chain.n();
+            let s = settings("rk4", Some(0.01));
+            let mut batch = Steppers::new(&chain, 11, &s).unwrap();
+            assert!(batch.route().starts_with("lanes:") || std::env::var(super::bank::SWITCH).as_deref() == Ok("scalar"), "{}", batch.route());
+            let start = |i: usize| -> (Vec<f64>, Vec<f64>) { ((0..n).map(|a| 0.3 * (i + a) as f64 - 1.0).collect(), (0..n).map(|a| 0.1 * (i as f64 - a as f64)).collect()) };
+            for i in 0..11 {
+                let (th, om) = start(i);
+                batch.reset(i, &th, &om, [0.0; 2]).unwrap();
+            }
+            let u: Vec<f64> = (0..11 * n).map(|j| 0.1 * (j % 7) as f64 - 0.3).collect();
+            let k = batch.state_len();
+            let (mut out, mut bal) = (vec![0.0; 11 * k], vec![0.0; 33]);
+            batch.step(&u, &[], 0.2, &[], &mut out, &mut bal).unwrap();
+            let mask: Vec<bool> = (0..11).map(|i| i != 1).collect();
+            batch.step(&u, &[], 0.2, &mask, &mut out, &mut bal).unwrap();
+            let mut again = vec![0.0; out.len()];
+            batch.states_into(&mut again);
+            assert_eq!(again, out, "the step's report is the state's");
+            for i in 0..11 {
+                let (th, om) = start(i);
+                let torque = Joint(Builtin::Constant(u[n * i..n * (i + 1)].to_vec()));
+                let mut one = Stepper::new(chain.clone(), &th, &om, &s, torque).unwrap();
+                let span = if i == 1 { 0.2 } else { 0.4 };
+                one.advance(span, u64::MAX).unwrap();
+                assert_eq!(one.counts().0, (span / 0.01).round() as u64, "whole steps of the grid");
+                for a in 0..n {
+                    assert!((out[k * i + a] - one.theta()[a]).abs() < 1e-12, "copy {i}");
+                    assert!((out[k * i + n + a] - one.omega()[a]).abs() < 1e-12, "copy {i}");
+                }
+                let mut alone = Steppers::new(&chain, 1, &s).unwrap();
+                alone.reset(0, &th, &om, [0.0; 2]).unwrap();
+                let (mut o1, mut b1) = (vec![0.0; k], vec![0.0; 3]);
+                for _ in 0..if i == 1 { 1 } else { 2 } {
+                    alone.step(&u[n * i..n * (i + 1)], &[], 0.2, &[], &mut o1, &mut b1).unwrap();
+                }
+                assert_eq!(&o1[..], &out[k * i..k * (i + 1)], "copy {i} bit for bit alone");
+            }
+            assert_eq!(bal[3], 0.2, "the masked copy stayed at t = 0.2");
+            assert!(bal.chunks(3).all(|b| b[2] < 1e-7), "the torque's work closes the balance: {bal:?}");
         }
-        let u = [0.0, 0.4, 1.0, -1.0, 0.0, 0.0];
-        let (mut out, mut bal) = (vec![0.0; 3 * batch.state_len()], vec![0.0; 9]);
-        batch.step(&u, &[], 0.2, &[], &mut out, &mut bal).unwrap();
-        batch.step(&u, &[], 0.2, &[true, false, true], &mut out, &mut bal).unwrap();
-        let mut again = vec![0.0; out.len()];
-        batch.states_into(&mut again);
-        assert_eq!(again, out, "the step's report is the state's");
-        for (i, (th, om)) in starts.iter().enumerate() {
-            let mut one = Stepper::new(chain.clone(), th, om, &s, Joint(Builtin::Constant(u[2 * i..2 * i + 2].to_vec()))).unwrap();
-            let span = if i == 1 { 0.2 } else { 0.4 };
-            one.advance(span, u64::MAX).unwrap();
-            assert_eq!(one.counts().0, (span / 0.01).round() as u64, "whole steps of the grid");
-            assert_eq!(&out[4 * i..4 * i + 2], one.theta(), "copy {i}");
-            assert_eq!(&out[4 * i + 2..4 * i + 4], one.omega(), "copy {i}");
+    }
+
+    #[test]
+    fn the_lane_paths_give_the_same_bits() {
+        use crate::trig::lanes::Path;
+        let chain = Chain::new(&[1.0, 0.5, 0.8, 0.3], &[1.0, 2.0, 0.5, 1.0], None, None, 9.81).unwrap();
+        let mut results = Vec::new();
+        for path in Path::ALL.into_iter().filter(|p| p.available()) {
+            let mut bank = Bank::new(&chain, 9, 0.005, path);
+            for i in 0..9 {
+                bank.reset(i, &[2.0, 2.5 - 0.1 * i as f64, -1.0, 0.5], &[0.0, 1.0, 0.0, -2.0]);
+            }
+            let (mut out, mut bal) = (vec![0.0; 72], vec![0.0; 27]);
+            for _ in 0..50 {
+                bank.step(&[0.1; 36], 0.05, &[], &mut out, &mut bal).unwrap();
+            }
+            results.push((path.name(), out));
         }
-        assert_eq!(bal[3], 0.2, "the masked copy stayed at t = 0.2");
-        assert!(bal[2] < 1e-7 && bal[8] < 1e-7, "the torque's work closes the balance: {bal:?}");
+        for (name, out) in &results[1..] {
+            assert_eq!(out, &results[0].1, "{name} against {}", results[0].0);
+        }
     }
 
     #[test]

@@ -1,0 +1,476 @@
+//! A bank of ideal chains stepped with rk4 in SIMD lanes, their joint torques held over each call:
+//! the route [`super::live::Steppers`] takes for an ideal chain (no losses, no cart, a fixed
+//! pivot) on rk4's Lagrangian form. Copies go eight to a group of lanes; the groups run in
+//! parallel. The step is [`crate::integrators::Rk4`]'s, operation for operation, on
+//! [`crate::dynamics::lanes`]' accelerations, so a copy agrees with its per-copy [`super::live::Stepper`]
+//! to round-off (the lanes' own `sin`/`cos`); each copy's bits depend neither on the other copies
+//! nor on the number of threads, and are the same on the AVX-512, AVX2 and portable builds.
+//!
+//! The torques' work is `tau . (theta_end - theta_start)` per call: exact for a torque held
+//! constant, and what rk4 gives the work integral `int tau . omega dt` in exact arithmetic.
+use super::energy::EnergyBalance;
+use super::simulate::Settings;
+use crate::dynamics::lanes::{accelerations, LaneScratch, LaneSingular};
+use crate::dynamics::system::NON_FINITE;
+use crate::dynamics::Workspace;
+use crate::error::{Error, Result};
+use crate::model::Chain;
+use crate::par::*;
+use crate::trig::lanes::{Lane, Path, LANES};
+
+/// The environment variable that picks the route of an ideal chain's steppers: `auto` (the lanes
+/// on the best path), `scalar` (one [`super::live::Stepper`] per copy), or a lane path by name.
+pub const SWITCH: &str = "MULTIPENDULUM_LANES";
+
+/// The lanes' path the environment asks for; `None` for the per-copy route.
+pub fn requested() -> Result<Option<Path>> {
+    match std::env::var(SWITCH).unwrap_or_default().as_str() {
+        "" | "auto" => Ok(Some(Path::best())),
+        "scalar" => Ok(None),
+        name => match Path::ALL.into_iter().find(|p| p.name() == name) {
+            Some(p) if p.available() => Ok(Some(p)),
+            Some(p) => Err(Error::input(format!(
+                "{SWITCH} = {} is not supported by this CPU",
+                p.name()
+            ))),
+            None => Err(Error::input(format!(
+                "{SWITCH} must be one of auto, scalar, portable, avx2, avx512, got {name:?}"
+            ))),
+        },
+    }
+}
+
+/// Whether a chain and settings take the lanes: an ideal chain on a fixed pivot, rk4, Lagrangian.
+pub fn fits(chain: &Chain, settings: &Settings) -> bool {
+    chain.is_ideal()
+        && settings.drive.pivot.is_none()
+        && settings.drive.force.is_none()
+        && settings.method == crate::integrators::Method::Rk4
+        && matches!(
+            settings.resolved_form(),
+            Ok(crate::dynamics::system::Form::Lagrangian)
+        )
+}
+
+/// Eight copies' lanes and the rk4 buffers.
+#[derive(Debug, Clone)]
+struct Group {
+    /// `[theta (N), omega (N)]`, each a lane.
+    y: Vec<Lane>,
+    tau: Vec<Lane>,
+    k: [Vec<Lane>; 4],
+    tmp: Vec<Lane>,
+    start: Vec<Lane>,
+    scratch: LaneScratch,
+    /// The per-copy energy's buffers.
+    ws: Workspace,
+    rows: [Vec<f64>; 3],
+}
+
+/// What a copy keeps besides its lane.
+#[derive(Debug, Clone)]
+struct Copy {
+    steps: u64,
+    work: f64,
+    balance: EnergyBalance,
+    failed: Option<Error>,
+}
+
+pub struct Bank {
+    chain: Chain,
+    dt: f64,
+    path: Path,
+    count: usize,
+    groups: Vec<Group>,
+    copies: Vec<Copy>,
+}
+
+impl Bank {
+    /// `count` copies hanging at rest; `dt` the rk4 step (checked by the caller).
+    pub fn new(chain: &Chain, count: usize, dt: f64, path: Path) -> Self {
+        let n = chain.n();
+        let lanes = |k| vec![[0.0; LANES]; k];
+        let group = Group {
+            y: lanes(2 * n),
+            tau: lanes(n),
+            k: std::array::from_fn(|_| lanes(2 * n)),
+            tmp: lanes(2 * n),
+            start: lanes(n),
+            scratch: LaneScratch::new(n),
+            ws: Workspace::new(n),
+            rows: std::array::from_fn(|_| vec![0.0; n]),
+        };
+        let groups = vec![group; count.div_ceil(LANES)];
+        let mut bank = Bank {
+            chain: chain.clone(),
+            dt,
+            path,
+            count,
+            groups,
+            copies: Vec::with_capacity(count),
+        };
+        let rest = vec![0.0; n];
+        for i in 0..count {
+            bank.copies.push(Copy {
+                steps: 0,
+                work: 0.0,
+                balance: EnergyBalance::from_energy(chain, 0.0, 0.0),
+                failed: None,
+            });
+            bank.reset(i, &rest, &rest);
+        }
+        bank
+    }
+
+    pub fn chain(&self) -> &Chain {
+        &self.chain
+    }
+
+    pub fn path(&self) -> Path {
+        self.path
+    }
+
+    /// Copy `i` anew at t = 0 from `(theta0, omega0)` (checked by the caller).
+    pub fn reset(&mut self, i: usize, theta0: &[f64], omega0: &[f64]) {
+        let n = self.chain.n();
+        let (g, lane) = (&mut self.groups[i / LANES], i % LANES);
+        for a in 0..n {
+            g.y[a][lane] = theta0[a];
+            g.y[n + a][lane] = omega0[a];
+        }
+        let mut ws = Workspace::new(n);
+        let kinetic = self
+            .chain
+            .kinetic_energy(theta0, omega0, &mut vec![0.0; n], &mut ws);
+        let energy = kinetic + self.chain.potential_energy(theta0);
+        self.copies[i] = Copy {
+            steps: 0,
+            work: 0.0,
+            balance: EnergyBalance::from_energy(&self.chain, kinetic, energy),
+            failed: None,
+        };
+    }
+
+    /// Hold joint torques `u` (count x N) and advance every active copy by the whole steps of its
+    /// grid `t_k = k dt` up to `t + span` (as [`super::driver::Run`] counts them); then every
+    /// copy writes its state `(theta, omega)` and `(t, energy, energy_error)`. The first copy
+    /// (by index) that fails names itself; it stays failed until reset.
+    pub fn step(
+        &mut self,
+        u: &[f64],
+        span: f64,
+        active: &[bool],
+        states: &mut [f64],
+        balance: &mut [f64],
+    ) -> Result<()> {
+        let (chain, dt, path) = (&self.chain, self.dt, self.path);
+        let n = chain.n();
+        let one = |(gi, ((((g, copies), u), states), balance)): (
+            usize,
+            (
+                (((&mut Group, &mut [Copy]), &[f64]), &mut [f64]),
+                &mut [f64],
+            ),
+        )| {
+            let base = gi * LANES;
+            let on = |j: usize| active.get(base + j).copied().unwrap_or(true);
+            let e = run_group(path, chain, dt, g, copies, u, span, &on);
+            report(chain, dt, g, copies, states, balance);
+            e.map(|(j, e)| (base + j, e))
+        };
+        // One group runs here: the pool's hand-over would cost more than its steps.
+        let failed: Option<(usize, Error)> = if self.groups.len() == 1 {
+            one((
+                0,
+                (
+                    (((&mut self.groups[0], &mut self.copies[..]), u), states),
+                    balance,
+                ),
+            ))
+        } else {
+            self.groups
+                .par_iter_mut()
+                .zip(self.copies.par_chunks_mut(LANES))
+                .zip(u.par_chunks(LANES * n))
+                .zip(states.par_chunks_mut(LANES * 2 * n))
+                .zip(balance.par_chunks_mut(LANES * 3))
+                .enumerate()
+                .filter_map(one)
+                .min_by_key(|(i, _)| *i)
+        };
+        match failed {
+            None => Ok(()),
+            Some((i, Error::Integration { t, reason })) => {
+                Err(Error::integration(t, format!("copy {i}: {reason}")))
+            }
+            Some((_, e)) => Err(e),
+        }
+    }
+
+    /// Every copy's state (count x 2N) and balance (count x 3).
+    pub fn report_into(&mut self, states: &mut [f64], balance: &mut [f64]) {
+        let (chain, dt, n) = (&self.chain, self.dt, self.chain.n());
+        for (((g, copies), s), b) in self
+            .groups
+            .iter_mut()
+            .zip(self.copies.chunks_mut(LANES))
+            .zip(states.chunks_mut(LANES * 2 * n))
+            .zip(balance.chunks_mut(LANES * 3))
+        {
+            report(chain, dt, g, copies, s, b);
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.count
+    }
+}
+
+/// Each copy of the group: its state row and `(t, energy, energy_error)`.
+fn report(
+    chain: &Chain,
+    dt: f64,
+    g: &mut Group,
+    copies: &mut [Copy],
+    states: &mut [f64],
+    balance: &mut [f64],
+) {
+    let n = chain.n();
+    let Group {
+        y,
+        ws,
+        rows: [th, om, scratch],
+        ..
+    } = g;
+    for (j, c) in copies.iter_mut().enumerate() {
+        for a in 0..n {
+            th[a] = y[a][j];
+            om[a] = y[n + a][j];
+        }
+        states[2 * n * j..2 * n * j + n].copy_from_slice(th);
+        states[2 * n * j + n..2 * n * (j + 1)].copy_from_slice(om);
+        let kinetic = chain.kinetic_energy(th, om, scratch, ws);
+        let energy = kinetic + chain.potential_energy(th);
+        let b = &mut balance[3 * j..3 * j + 3];
+        b[0] = c.steps as f64 * dt;
+        b[1] = energy;
+        b[2] = c.balance.observe(kinetic, energy, c.work);
+    }
+}
+
+/// The group's steps on the chosen path; the first failed copy of the group (its lane).
+#[allow(clippy::too_many_arguments)]
+fn run_group(
+    path: Path,
+    chain: &Chain,
+    dt: f64,
+    g: &mut Group,
+    copies: &mut [Copy],
+    u: &[f64],
+    span: f64,
+    on: &dyn Fn(usize) -> bool,
+) -> Option<(usize, Error)> {
+    match path {
+        // SAFETY: the path was checked available when chosen.
+        #[cfg(target_arch = "x86_64")]
+        Path::Avx512 => unsafe { run_group_avx512(chain, dt, g, copies, u, span, on) },
+        #[cfg(target_arch = "x86_64")]
+        Path::Avx2 => unsafe { run_group_avx2(chain, dt, g, copies, u, span, on) },
+        _ => run_group_body(chain, dt, g, copies, u, span, on),
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,fma")]
+unsafe fn run_group_avx512(
+    chain: &Chain,
+    dt: f64,
+    g: &mut Group,
+    copies: &mut [Copy],
+    u: &[f64],
+    span: f64,
+    on: &dyn Fn(usize) -> bool,
+) -> Option<(usize, Error)> {
+    run_group_body(chain, dt, g, copies, u, span, on)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn run_group_avx2(
+    chain: &Chain,
+    dt: f64,
+    g: &mut Group,
+    copies: &mut [Copy],
+    u: &[f64],
+    span: f64,
+    on: &dyn Fn(usize) -> bool,
+) -> Option<(usize, Error)> {
+    run_group_body(chain, dt, g, copies, u, span, on)
+}
+
+#[inline(always)]
+fn run_group_body(
+    chain: &Chain,
+    dt: f64,
+    g: &mut Group,
+    copies: &mut [Copy],
+    u: &[f64],
+    span: f64,
+    on: &dyn Fn(usize) -> bool,
+) -> Option<(usize, Error)> {
+    let n = chain.n();
+    // Each copy's number of grid steps this call, and its generalized torques (joint motors).
+    let mut todo = [0u64; LANES];
+    for (j, c) in copies.iter().enumerate() {
+        if !on(j) || c.failed.is_some() {
+            continue;
+        }
+        let target = c.steps as f64 * dt + span;
+        let mut k = c.steps;
+        while ((k + 1) as f64 * dt) <= target + 1e-9 * dt {
+            k += 1;
+        }
+        todo[j] = k - c.steps;
+        for a in 0..n {
+            let next = if a + 1 < n { u[n * j + a + 1] } else { 0.0 };
+            g.tau[a][j] = u[n * j + a] - next;
+        }
+    }
+    for a in 0..n {
+        g.start[a] = g.y[a];
+    }
+    let rounds = todo.iter().copied().max().unwrap_or(0);
+    let mut first_failure: Option<(usize, Error)> = None;
+    let mut fail =
+        |j: usize, t: f64, reason: String, todo: &mut [u64; LANES], r: u64, copies: &mut [Copy]| {
+            let e = Error::integration(t, reason);
+            copies[j].failed = Some(e.clone());
+            todo[j] = r;
+            if first_failure.as_ref().map_or(true, |(k, _)| j < *k) {
+                first_failure = Some((j, e));
+            }
+        };
+    for r in 0..rounds {
+        // A lane whose mass matrix fails stops at its last good state; the step is then taken
+        // again by the others.
+        loop {
+            let mut active = [0.0; LANES];
+            for j in 0..copies.len() {
+                active[j] = if r < todo[j] { 1.0 } else { 0.0 };
+            }
+            if active.iter().all(|&a| a == 0.0) {
+                break;
+            }
+            match rk4(chain, g, dt, &active) {
+                Ok(nonfinite) => {
+                    for j in 0..copies.len() {
+                        if nonfinite[j] {
+                            fail(
+                                j,
+                                (copies[j].steps + r + 1) as f64 * dt,
+                                NON_FINITE.to_string(),
+                                &mut todo,
+                                r,
+                                copies,
+                            );
+                        }
+                    }
+                    break;
+                }
+                Err((stage, bad)) => {
+                    for j in 0..copies.len() {
+                        if bad.lanes[j] {
+                            let t = (copies[j].steps + r) as f64 * dt
+                                + [0.0, 0.5, 0.5, 1.0][stage] * dt;
+                            fail(j, t, bad.link.reason(), &mut todo, r, copies);
+                        }
+                    }
+                }
+            }
+        }
+    }
+    for (j, c) in copies.iter_mut().enumerate() {
+        if todo[j] == 0 {
+            if let Some(e) = &c.failed {
+                if on(j) {
+                    first_failure.get_or_insert((j, e.clone()));
+                }
+            }
+            continue;
+        }
+        c.steps += todo[j];
+        c.work += (0..n)
+            .map(|a| g.tau[a][j] * (g.y[a][j] - g.start[a][j]))
+            .sum::<f64>();
+    }
+    first_failure
+}
+
+/// One rk4 step of every active lane, as `Rk4::step` (stages, then the weighted sum), leaving
+/// the inactive lanes as they were. `Err((stage, _))` if an active lane's pivot failed (no lane
+/// moves then); else the active lanes whose new state is not finite (they do not move).
+#[inline(always)]
+fn rk4(
+    chain: &Chain,
+    g: &mut Group,
+    dt: f64,
+    active: &Lane,
+) -> std::result::Result<[bool; LANES], (usize, LaneSingular)> {
+    let n = chain.n();
+    let half = 0.5 * dt;
+    let Group {
+        y,
+        tau,
+        k,
+        tmp,
+        scratch,
+        ..
+    } = g;
+    // Loops over whole lanes by iterators (no bounds checks), so they vectorise.
+    for stage in 0..4 {
+        {
+            let src: &[Lane] = if stage == 0 { &y[..] } else { &tmp[..] };
+            let (head, tail) = k[stage].split_at_mut(n);
+            head.copy_from_slice(&src[n..2 * n]);
+            accelerations(chain, &src[..n], &src[n..2 * n], tau, tail, scratch, active)
+                .map_err(|s| (stage, s))?;
+        }
+        if stage < 3 {
+            let h = if stage < 2 { half } else { dt };
+            for ((t, yv), kv) in tmp.iter_mut().zip(y.iter()).zip(k[stage].iter()) {
+                for i in 0..LANES {
+                    t[i] = yv[i] + h * kv[i];
+                }
+            }
+        }
+    }
+    let sixth = dt / 6.0;
+    // `x * 0` is 0 for a finite x and NaN otherwise: the lanes' finiteness without branches.
+    let mut poison = [0.0; LANES];
+    let [k1, k2, k3, k4] = &*k;
+    for (((((t, yv), a), b), c), d) in tmp
+        .iter_mut()
+        .zip(y.iter())
+        .zip(k1.iter())
+        .zip(k2.iter())
+        .zip(k3.iter())
+        .zip(k4.iter())
+    {
+        for i in 0..LANES {
+            t[i] = yv[i] + sixth * (a[i] + 2.0 * (b[i] + c[i]) + d[i]);
+            poison[i] += t[i] * 0.0;
+        }
+    }
+    let (mut keep, mut nonfinite) = ([false; LANES], [false; LANES]);
+    for i in 0..LANES {
+        let finite = poison[i] == 0.0;
+        keep[i] = active[i] > 0.0 && finite;
+        nonfinite[i] = active[i] > 0.0 && !finite;
+    }
+    for (yv, t) in y.iter_mut().zip(tmp.iter()) {
+        for i in 0..LANES {
+            yv[i] = if keep[i] { t[i] } else { yv[i] };
+        }
+    }
+    Ok(nonfinite)
+}
