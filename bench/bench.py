@@ -16,6 +16,10 @@ reported, not timed):
   (e) the model extensions of issue #13: a double inverted pendulum on a cart against MuJoCo,
       and the cost of damping, friction, a moving pivot and a cart: bench/bench_model.py, run
       as a subprocess.
+  (f) the Gymnasium environments (multipendulum.envs): 256 copies of Acrobot-v0 and CartPole-v0
+      in our vector env against gymnasium's Acrobot-v1 and MuJoCo InvertedDoublePendulum-v5 in
+      a SyncVectorEnv (env-steps per second), and the cost of one env.step against the bare
+      core: bench/bench_envs.py, run as a subprocess (alone: bench/run [--quick] --only f).
 Speeds are measured in alternation (bench_engine.measure) so background load falls on every
 contender alike; times are medians of several repeats, with their ranges.
 """
@@ -260,6 +264,60 @@ def model_summary(model):
     return L
 
 
+# ----------------------------------------------------------------------------- (f) environments
+
+
+def run_envs(quick, python):
+    """bench_envs.py as a subprocess: its JSON and its Markdown section."""
+    script = BENCH / "bench_envs.py"
+    out_json, out_md = BUILD / "envs.json", BUILD / "envs.md"
+    for p in (out_json, out_md):
+        p.unlink(missing_ok=True)
+    cmd = [python, str(script), *(["--quick"] if quick else []), "--json", str(out_json),
+           "--md", str(out_md)]
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    res = {"cmd": " ".join(["bench/bench_envs.py", *cmd[2:3 if quick else 2]]),
+           "seconds": time.perf_counter() - t0}
+    if not out_json.exists():
+        tail = (proc.stderr or proc.stdout).strip().splitlines()[-5:]
+        return {**res, "status": "failed", "why": f"exit code {proc.returncode}: "
+                + " / ".join(tail)}
+    data = json.loads(out_json.read_text())
+    res.update(status="ok" if proc.returncode == 0 else "partial", data=data,
+               md=out_md.read_text() if out_md.exists() else "")
+    return res
+
+
+def envs_summary(envs):
+    """Summary rows for (f), from bench_envs's JSON."""
+    import bench_envs as V
+
+    label = f"(f) {V.TARGET_ID} vector env ({V.NUM_ENVS}) vs gymnasium {{}}, env-steps/s"
+    targets = (("peer_a", V.PEER_A + " SyncVectorEnv", V.TARGET_A),
+               ("peer_b", V.PEER_B + " (MuJoCo) SyncVectorEnv", V.TARGET_B))
+    if envs.get("status") not in ("ok", "partial"):
+        return [verdict_row(label.format(name), "not run", "—", "—", f">= {t:g}x",
+                            envs.get("why", "not run")) for _, name, t in targets]
+    rows = envs["data"].get("vector", {}).get("rows", [])
+    by = {r["key"]: r for r in rows}
+    ours = by.get(V.TARGET_ID, {})
+    L = []
+    for key, name, target in targets:
+        peer = by.get(key, {})
+        if "env_steps_per_s" not in ours or "env_steps_per_s" not in peer:
+            why = ours.get("skipped") or ours.get("error") or peer.get("error") or "not timed"
+            L.append(verdict_row(label.format(name), "not timed", "—", "—", f">= {target:g}x",
+                                 why))
+            continue
+        ratio = ours["env_steps_per_s"][0] / peer["env_steps_per_s"][0]
+        L.append(verdict_row(label.format(name), f"{ours['env_steps_per_s'][0]:.3g}/s",
+                             f"{peer['env_steps_per_s'][0]:.3g}/s", f"{ratio:.0f}x",
+                             f">= {target:g}x", E.verdict_at_least(ratio, target)
+                             + " — see (f)" * (ratio < target)))
+    return L
+
+
 def flip_pick(rows, *words, exclude=()):
     for r in rows:
         name = r.get("name", "").lower()
@@ -460,8 +518,8 @@ def versions(mp):
     import importlib.metadata as md
 
     v = {"multipendulum": f"{getattr(mp, '__version__', '?')} ({Path(mp.__file__).parent})"}
-    for dist in ("numpy", "scipy", "numba", "jax", "mujoco", "pin", "mpmath", "gmpy2",
-                 "matplotlib"):
+    for dist in ("numpy", "scipy", "numba", "jax", "mujoco", "gymnasium", "pin", "mpmath",
+                 "gmpy2", "matplotlib"):
         try:
             v[dist] = md.version(dist)
         except md.PackageNotFoundError:
@@ -473,7 +531,7 @@ def verdict_row(label, ours, peer, ratio_text, target_text, verdict):
     return f"| {label} | {ours} | {peer} | {ratio_text} | {target_text} | {verdict} |"
 
 
-def summary(rk4, numba_dp, dop, chains, flip, wp, model=None):
+def summary(rk4, numba_dp, dop, chains, flip, wp, model=None, envs=None):
     L = ["| target | multipendulum | peer | ratio | target | result |",
          "|---|---|---|---|---|---|"]
     if rk4.get("agree"):
@@ -551,11 +609,13 @@ def summary(rk4, numba_dp, dop, chains, flip, wp, model=None):
                              f"1e-4 … 1e-11: {prob['key']}", "—", "—", "—", "below all", v))
     if model is not None:
         L += model_summary(model)
+    if envs is not None:
+        L += envs_summary(envs)
     return "\n".join(L)
 
 
 def render(args, info, vers, c_cmd, elapsed, busy, rk4, numba_dp, acc_rows, acc_fit, dop,
-           chains, fits, flip, wp, model=None):
+           chains, fits, flip, wp, model=None, envs=None):
     L = ["# Benchmarks: multipendulum against its peers", ""]
     mode = "--quick" if args.quick else "full"
     L.append(f"Generated by `{'make bench QUICK=1' if args.quick else 'make bench'}` "
@@ -572,9 +632,10 @@ def render(args, info, vers, c_cmd, elapsed, busy, rk4, numba_dp, acc_rows, acc_
                  + "; ".join(busy[:4]))
         L.append("")
     model = model or {"status": "not run", "why": "left out with --only"}
+    envs = envs or {"status": "not run", "why": "left out with --only"}
     L.append("## Summary of the targets (issues #5 and #13)")
     L.append("")
-    L.append(summary(rk4, numba_dp, dop, chains, flip, wp, model))
+    L.append(summary(rk4, numba_dp, dop, chains, flip, wp, model, envs))
     L.append("")
     L.append("## Machine and versions")
     L.append("")
@@ -767,14 +828,33 @@ def render(args, info, vers, c_cmd, elapsed, busy, rk4, numba_dp, acc_rows, acc_
     else:
         L.append(f"Not run: {model.get('why')}.")
     L.append("")
+
+    # (f)
+    L.append("## (f) Gymnasium environments: vector throughput and the cost of one step")
+    L.append("")
+    L.append(envs_section(envs))
     return "\n".join(L) + "\n"
+
+
+def envs_section(envs):
+    """Section (f)'s body (under its ## title): bench_envs's Markdown, or why it is missing."""
+    if envs.get("status") not in ("ok", "partial"):
+        return f"Not run: {envs.get('why')}.\n"
+    L = [f"From `{envs['cmd']}` ({envs['seconds']:.0f} s), its own section"
+         + (" (a part failed)" if envs["status"] == "partial" else "") + ":", ""]
+    lines = envs.get("md", "").strip().splitlines()
+    if lines and lines[0].startswith("## "):
+        lines = lines[1:]  # its title is this section's
+    L.append("\n".join(lines).strip())  # its ### subsections sit under this ##
+    L.append("")
+    return "\n".join(L)
 
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--quick", action="store_true", help="smaller scans (under 5 min on 2 cores)")
     p.add_argument("--repeats", type=int, default=None, help="repeats per measurement (>= 3)")
-    p.add_argument("--only", default="abcde", help="workloads to run, e.g. 'bd' (default: all)")
+    p.add_argument("--only", default="abcdef", help="workloads to run, e.g. 'bd' (default: all)")
     args = p.parse_args(argv)
     args.repeats = max(3, args.repeats or (5 if args.quick else 7))
     start = time.perf_counter()
@@ -782,11 +862,12 @@ def main(argv=None):
     if busy:
         log("warning: compiler processes are running; timings will be skewed")
     info = E.machine_info()
-    c_cmd = E.build_c()
+    # The C peer is workload (a)'s alone: not compiled for a run without it.
+    c_cmd = E.build_c() if "a" in args.only else "not built (workload (a) left out)"
     import multipendulum as mp
 
     vers = versions(mp)
-    rk4 = numba_dp = dop = flip = model = {}
+    rk4 = numba_dp = dop = flip = model = envs = {}
     acc_rows, acc_fit, chains, fits, wp = [], {}, [], {}, []
     if "a" in args.only:
         log("(a) rk4 against C, Numba; accelerations; dop853 against SciPy ...")
@@ -809,6 +890,13 @@ def main(argv=None):
         model = run_model(args.quick, sys.executable)
     else:
         model = {"status": "not run", "why": "left out with --only"}
+    if "f" in args.only:
+        log("(f) the Gymnasium environments (bench_envs.py) ...")
+        envs = run_envs(args.quick, sys.executable)
+        if envs.get("status") != "ok":
+            log(f"  (f) {envs.get('status')}: {envs.get('why', 'a part failed, see its section')}")
+    else:
+        envs = {"status": "not run", "why": "left out with --only"}
     busy = sorted(set(busy) | set(E.busy_compilers()))
     if hasattr(os, "getloadavg"):
         info["load average at end (1, 5, 15 min)"] = " ".join(f"{x:.2f}" for x in os.getloadavg())
@@ -818,14 +906,22 @@ def main(argv=None):
     raw = {"rk4": rk4, "numba_dp": numba_dp, "dop853": dop, "chains": chains, "fits": fits,
            "flip": {k: v for k, v in flip.items() if k != "md"}, "wp": wp, "info": info,
            "model": {k: v for k, v in model.items() if k != "md"},
+           "envs": {k: v for k, v in envs.items() if k != "md"},
            "versions": vers, "elapsed": elapsed, "quick": args.quick}
     BUILD.mkdir(exist_ok=True)
     (BUILD / "results.json").write_text(json.dumps(raw, indent=1, default=str))
     if set(args.only) >= set("abd"):
         report = render(args, info, vers, c_cmd, elapsed, busy, rk4, numba_dp, acc_rows,
-                        acc_fit, dop, chains, fits, flip, wp, model)
+                        acc_fit, dop, chains, fits, flip, wp, model, envs)
         RESULTS.write_text(report, encoding="utf-8")
         print(report)
+    elif "f" in args.only:
+        # A partial run: (f)'s section as it would stand in RESULTS.md, printed (and kept in
+        # bench/build/envs.md), with its summary rows.
+        print("## (f) Gymnasium environments: vector throughput and the cost of one step\n")
+        print("\n".join(["| target | multipendulum | peer | ratio | target | result |",
+                         "|---|---|---|---|---|---|", *envs_summary(envs)]) + "\n")
+        print(envs_section(envs))
     log(f"done in {elapsed / 60:.1f} min")
     return 0
 
