@@ -64,6 +64,19 @@ impl PySteppers {
         self.inner.reset(index, theta0, omega0, [cart0.0, cart0.1]).map_err(|e| to_py(py, e))
     }
 
+    /// Start every copy anew at t = 0 from the rows of flat `theta0`, `omega0` (count x N each).
+    fn reset_all(&mut self, py: Python<'_>, theta0: PyReadonlyArray1<'_, f64>, omega0: PyReadonlyArray1<'_, f64>) -> PyResult<()> {
+        let (theta0, omega0) = (slice("theta0", &theta0)?, slice("omega0", &omega0)?);
+        let (count, n) = (self.inner.len(), self.inner.chain().n());
+        if theta0.len() != count * n || omega0.len() != count * n {
+            return Err(InputError::new_err(format!("theta0 and omega0 must both have count x N = {} values", count * n)));
+        }
+        for i in 0..count {
+            self.inner.reset(i, &theta0[i * n..(i + 1) * n], &omega0[i * n..(i + 1) * n], [0.0, 0.0]).map_err(|e| to_py(py, e))?;
+        }
+        Ok(())
+    }
+
     /// Hold joint torques (count x N, flat) and cart forces (count, or empty without a cart),
     /// then advance every copy by `span` (whole steps of a fixed-step method's grid), without
     /// the GIL.

@@ -115,6 +115,11 @@ class Engine:
                        (float(cart[0]), float(cart[1])))
         self._states = self._balance = None
 
+    def reset_all(self, theta: Array, omega: Array) -> None:
+        """Every copy anew from the rows of ``theta``, ``omega`` (B, N), on a fixed pivot."""
+        self._st.reset_all(np.ascontiguousarray(theta, dtype=float).ravel(), np.ascontiguousarray(omega, dtype=float).ravel())
+        self._states = self._balance = None
+
     def step(self, torques: Array, forces: Optional[Array], active: Optional[npt.NDArray[np.bool_]] = None) -> None:
         """Hold joint torques (B, N) and cart forces (B,) over one env step of every active copy."""
         f = self._no_force if forces is None else np.ascontiguousarray(forces, dtype=float).ravel()

@@ -78,9 +78,7 @@ class _Acrobot:
         """(B, 4) gymnasium states and (B,) torques -> the next states and the steps' residuals."""
         engine = self._chain_engine()
         s = np.asarray(states, dtype=np.float64)
-        for i in range(len(s)):
-            t1, t2, w1, w2 = s[i]
-            engine.reset(i, np.array([t1, t1 + t2]), np.array([w1, w1 + w2]))
+        engine.reset_all(np.stack([s[:, 0], s[:, 0] + s[:, 1]], axis=1), np.stack([s[:, 2], s[:, 2] + s[:, 3]], axis=1))
         joint = np.zeros((len(s), 2))
         joint[:, 1] = torques
         engine.step(joint, None)
@@ -241,8 +239,10 @@ class AcrobotCompatVectorEnv(_Acrobot, VectorEnv[Any, Any, Any]):
         return self._obs(), self._info()
 
     def _obs(self) -> npt.NDArray[np.float32]:
-        assert self.state is not None
-        return np.stack([self._ob(s) for s in self.state])
+        s = self.state
+        assert s is not None
+        return np.stack([np.cos(s[:, 0]), np.sin(s[:, 0]), np.cos(s[:, 1]), np.sin(s[:, 1]), s[:, 2], s[:, 3]],
+                        axis=1).astype(np.float32)
 
     def _info(self) -> Dict[str, Any]:
         return {"energy_error": self._residual.copy(), "_energy_error": np.ones(self.num_envs, dtype=np.bool_)}
@@ -253,17 +253,21 @@ class AcrobotCompatVectorEnv(_Acrobot, VectorEnv[Any, Any, Any]):
         a = np.asarray(actions)
         if a.shape != (self.num_envs,):
             raise InputError(f"actions must have shape ({self.num_envs},), got {a.shape}")
+        if a.dtype.kind not in "iu" or np.any((a < 0) | (a >= self.actions_num)):
+            raise InputError(f"actions must be integers 0, 1 or 2 (Discrete(3)), got {actions!r}")
         restart = self._done.copy()
-        torques = np.array([0.0 if restart[i] else self._torque(a[i], self._rngs[i]) for i in range(self.num_envs)])
+        torques = np.where(restart, 0.0, np.asarray(self.AVAIL_TORQUE, dtype=float)[a])
+        if self.torque_noise_max > 0:  # drawn as gymnasium's env draws it, from each env's generator
+            for i in np.flatnonzero(~restart):
+                torques[i] += self._rngs[i].uniform(-self.torque_noise_max, self.torque_noise_max)
         ns, residual = self._transition(self.state, torques)
-        for i in range(self.num_envs):
-            if restart[i]:
-                self._start(i)
-            else:
-                self.state[i] = ns[i]
-                self._residual[i] = residual[i]
+        self.state[~restart] = ns[~restart]
+        self._residual[~restart] = residual[~restart]
+        for i in np.flatnonzero(restart):
+            self._start(int(i))
         self._steps[~restart] += 1
-        terminated = np.array([False if restart[i] else self._terminal(s) for i, s in enumerate(self.state)])
+        s = self.state
+        terminated = ~restart & (-np.cos(s[:, 0]) - np.cos(s[:, 1] + s[:, 0]) > 1.0)
         truncated = (self._steps >= self.max_episode_steps) & ~restart if self.max_episode_steps is not None \
             else np.zeros(self.num_envs, dtype=np.bool_)
         reward = np.where(terminated | restart, 0.0, -1.0)
