@@ -19,9 +19,10 @@ from ._torque import Sinusoid, Table
 from .checkpoint import load_checkpoint
 from .chaos import EnsembleResult, FlipMap, LyapunovResult, ensemble, PoincareSection, plot_poincare, poincare, flip_energy_threshold, flip_map, flip_times, lyapunov, trustworthy_until
 from .chaos import INDICATORS, IndicatorMap, IndicatorResult, fli, gali, indicator, indicator_map, megno, sali
+from .chaos import ZeroOneResult, zero_one_test
 from .errors import InputError, IntegrationError
 from .modes import NormalModes, linearize, normal_modes
-from .sweeps import open_flip_map, sweep, sweep_flip_map
+from .sweeps import open_flip_map, open_indicator_map, sweep, sweep_flip_map, sweep_indicator_map
 
 # The compiled core's version (the workspace's, kept equal to pyproject's): right also when the
 # package is imported from a source tree without install metadata (bench/.venv does so).
@@ -32,8 +33,10 @@ __all__ = [
     "InputError", "IntegrationError", "__version__",
     "normal_modes", "NormalModes", "linearize", "animate_mode", "plot_modes",
     "sweep", "sweep_flip_map", "open_flip_map", "plot_flip_map",
+    "sweep_indicator_map", "open_indicator_map", "plot_indicator_map",
     "ensemble", "EnsembleResult", "poincare", "PoincareSection", "plot_poincare", "lyapunov", "LyapunovResult", "trustworthy_until", "flip_energy_threshold", "flip_times", "flip_map", "FlipMap",
     "INDICATORS", "indicator", "IndicatorResult", "megno", "fli", "sali", "gali", "indicator_map", "IndicatorMap",
+    "zero_one_test", "ZeroOneResult",
 ]
 
 
@@ -44,6 +47,7 @@ def __getattr__(name: str) -> _typing.Any:
         "animate_mode": ("modes", "animate_mode"),
         "plot_modes": ("modes", "plot_modes"),
         "plot_flip_map": ("fractal", "plot_flip_map"),
+        "plot_indicator_map": ("fractal", "plot_indicator_map"),
         "plot": ("plotting", "plot"),
         "save_results": ("results", "save_results"),
         "load_results": ("results", "load_results"),

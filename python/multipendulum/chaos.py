@@ -15,6 +15,7 @@ from ._progress import Progress, reporter
 from ._progress import check as _check_progress
 from ._torque import TorqueLike, core_torque, normalise_torque
 from ._indicators import INDICATORS, IndicatorResult, fli, gali, indicator, megno, sali
+from ._zero_one import ZeroOneResult, zero_one_test
 from ._lyapunov import LyapunovResult, _link, lyapunov, trustworthy_until
 from ._simulate import DEFAULTS, Crossing, EventRecord, Flip, simulate
 from .errors import InputError
@@ -30,7 +31,7 @@ if TYPE_CHECKING:
 #: ``"theta"`` or ``"omega"`` of a link.
 Vary = Tuple[str, Integer, str, Integer]
 
-__all__ = ["INDICATORS", "IndicatorResult", "indicator", "megno", "fli", "sali", "gali", "IndicatorMap",
+__all__ = ["ZeroOneResult", "zero_one_test", "INDICATORS", "IndicatorResult", "indicator", "megno", "fli", "sali", "gali", "IndicatorMap",
            "indicator_map", "EnsembleResult", "ensemble", "PoincareSection", "poincare", "plot_poincare", "LyapunovResult", "lyapunov", "trustworthy_until", "flip_energy_threshold", "flip_times", "flip_map", "FlipMap"]
 
 
@@ -143,9 +144,12 @@ class IndicatorMap:
 
     x: npt.NDArray[np.float64]
     y: npt.NDArray[np.float64]
-    values: npt.NDArray[np.float64]
+    #: A NumPy array, or the on-disk Zarr array of a map written to a store (:func:`sweep_indicator_map`).
+    values: Union[npt.NDArray[np.float64], ZarrArray]
     indicator: str
     t_end: float
+    #: GALI's order (None for the other indicators).
+    k: Optional[int] = None
 
 
 def indicator_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_end: float = 50.0, indicator: str = "megno",
@@ -171,7 +175,8 @@ def indicator_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_end: float
     om_base = np.zeros(n) if base_omega is None else as_state(base_omega, "base_omega", n)
     theta0, omega0 = _grid(y, x, _check_vary(vary, n), th_base, om_base)
     values = indicator_fn(chain, theta0, omega0, t_end, indicator, k=k, dt=dt, torque=torque, progress=progress)
-    return IndicatorMap(x, y, cast("npt.NDArray[np.float64]", values), indicator, float(t_end))
+    return IndicatorMap(x, y, cast("npt.NDArray[np.float64]", values), indicator, float(t_end),
+                        None if k is None else int(k))
 
 
 indicator_fn = indicator

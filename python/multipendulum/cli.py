@@ -2,7 +2,7 @@
 
 Subcommands: ``run`` a scenario file, ``animate`` or ``plot`` a results file, ``demo`` (the
 chaotic double pendulum, end to end), ``serve`` the browser viewer, ``fractal`` a flip-time map
-of a scenario's chain. Each subcommand is one function decorated with :func:`command`, which
+of a scenario's chain, ``atlas`` a map of a chaos indicator (or the flip-time map) of it. Each subcommand is one function decorated with :func:`command`, which
 adds its parser and sets its handler; adding a subcommand means adding one such function.
 Handlers return the exit status.
 
@@ -494,31 +494,45 @@ def _add_fractal(sub, common) -> None:
                     "(a scenario's torque is not applied). Runs on all cores; --dask spreads it over a "
                     "cluster and --zarr writes it chunk by chunk.",
     )
+    _add_map_options(p, zarr_what="times, allowed, x, y")
+    p.add_argument("--t-max", type=float, metavar="SECONDS",
+                   help="how long to wait for a flip (default: the scenario's t_end)")
+    p.add_argument("--dt", type=float, default=FLIP_DT, metavar="SECONDS",
+                   help=f"rk4 step of the flip kernel (default {FLIP_DT:g}; flips are root-found within a step)")
+    _add_flip_options(p)
+    p.set_defaults(handler=_cmd_fractal)
+
+
+#: The flip kernel's rk4 step when the command line gives none (`fractal`, `atlas --indicator flip`).
+FLIP_DT = 0.01
+
+
+def _add_map_options(p: argparse.ArgumentParser, zarr_what: str) -> None:
+    """The options a map's command shares (`fractal`, `atlas`): the scenario, the picture, the
+    grid (its size, the quantities along x and y and their ranges) and where it is computed."""
     p.add_argument("scenario", type=Path, metavar="SCENARIO", help="scenario file (.toml)")
     p.add_argument("-o", "--output", type=Path, required=True, metavar="MAP.png", help="picture to write (.png)")
     p.add_argument("--size", type=int, default=256, metavar="N", help="grid of N x N initial states (default 256)")
-    p.add_argument("--t-max", type=float, metavar="SECONDS",
-                   help="how long to wait for a flip (default: the scenario's t_end)")
-    p.add_argument("--dt", type=float, default=0.01, metavar="SECONDS",
-                   help="rk4 step of the flip kernel (default 0.01; flips are root-found within a step)")
     p.add_argument("--x", default="theta1", metavar="QUANTITY",
                    help="quantity along x: thetaK or omegaK for link K = 1..N (default theta1)")
     p.add_argument("--y", default="theta2", metavar="QUANTITY", help="quantity along y (default theta2)")
     p.add_argument("--x-range", type=float, nargs=2, metavar=("LO", "HI"),
                    help="x range in degrees (degrees/s for omega); default -180 180 (omega: -720 720)")
     p.add_argument("--y-range", type=float, nargs=2, metavar=("LO", "HI"), help="y range, as --x-range")
-    p.add_argument("--link", type=int, metavar="K", help="time the flips of link K only (default: any link)")
-    p.add_argument("--linear", action="store_true", help="linear colour scale in time (default logarithmic)")
     p.add_argument("--dask", metavar="ADDRESS",
                    help="compute on Dask: a dask.distributed scheduler address (tcp://host:8786), or "
                         "'threads' / 'processes' for Dask's local schedulers; needs multipendulum[dask]")
     p.add_argument("--chunks", type=int, metavar="ROWS", help="rows of the grid per Dask task (default: about "
                    "16384 initial states per task)")
     p.add_argument("--zarr", type=Path, metavar="PATH",
-                   help="also write the map (times, allowed, x, y) to this Zarr store, chunk by chunk, "
+                   help=f"also write the map ({zarr_what}) to this Zarr store, chunk by chunk, "
                         "without gathering it in one process; needs multipendulum[dask]")
     p.add_argument("--dpi", type=float, default=150, help="resolution of the picture (default 150)")
-    p.set_defaults(handler=_cmd_fractal)
+
+
+def _add_flip_options(p: argparse.ArgumentParser, only: str = "") -> None:
+    p.add_argument("--link", type=int, metavar="K", help=f"time the flips of link K only (default: any link){only}")
+    p.add_argument("--linear", action="store_true", help=f"linear colour scale in time (default logarithmic){only}")
 
 
 def _fractal_axis(text: str, n: int, option: str):
@@ -602,18 +616,12 @@ def _flip_map_in_blocks(chain, x, y, report, **kwargs):
     return mp.FlipMap(x, y, np.concatenate(times), np.concatenate(allowed), float(kwargs["t_max"]), threshold)
 
 
-def _cmd_fractal(args) -> int:
-    import numpy as np
-
+def _map_vary(args, n: int, what: str):
+    """``vary`` from --x and --y, checked against the chain's N, and --size checked."""
     import multipendulum as mp
-    from .fractal import plot_flip_map
-    from .scenario import load_scenario
 
-    scenario = load_scenario(args.scenario)
-    chain = scenario.build_chain()
-    n = chain.n
     if n < 2 and args.x.startswith("theta") and args.y.startswith("theta"):
-        raise mp.InputError("a flip map varies two quantities; a 1-link chain has theta1 and omega1: "
+        raise mp.InputError(f"{what} varies two quantities; a 1-link chain has theta1 and omega1: "
                             "use --x theta1 --y omega1")
     kx, ix = _fractal_axis(args.x, n, "--x")
     ky, iy = _fractal_axis(args.y, n, "--y")
@@ -621,13 +629,22 @@ def _cmd_fractal(args) -> int:
         raise mp.InputError(f"--x and --y must differ, both are {args.x!r}")
     if args.size < 2:
         raise mp.InputError(f"--size must be at least 2, got {args.size}")
-    if args.link is not None and not 1 <= args.link <= n:
-        raise mp.InputError(f"--link must be between 1 and {n}, got {args.link}")
+    return kx, ix, ky, iy
+
+
+def _map_output(args) -> None:
+    import multipendulum as mp
+
     if args.output.suffix.lower() != ".png":
         raise mp.InputError(f"the map is written as PNG: -o must end in .png, got {str(args.output)!r}")
-    t_max = scenario.t_end if args.t_max is None else args.t_max
-    link = None if args.link is None else args.link - 1
-    _fractal_budget(args, n, t_max)
+
+
+def _map_axes(args, vary):
+    """The picture's resolution checked, then the grid's x and y (radians): the centres of
+    --size pixels across --x-range and --y-range."""
+    import numpy as np
+
+    import multipendulum as mp
     from .fractal import check_picture
 
     check_picture(args.dpi, names={"dpi": "--dpi"})
@@ -639,8 +656,27 @@ def _cmd_fractal(args) -> int:
         step = (hi - lo) / args.size
         return np.radians(lo + step * (np.arange(args.size) + 0.5))  # pixel centres
 
-    x, y = axis(kx, args.x_range), axis(ky, args.y_range)
-    vary = (kx, ix, ky, iy)
+    return axis(vary[0], args.x_range), axis(vary[2], args.y_range)
+
+
+def _cmd_fractal(args) -> int:
+    import numpy as np
+
+    import multipendulum as mp
+    from .fractal import plot_flip_map
+    from .scenario import load_scenario
+
+    scenario = load_scenario(args.scenario)
+    chain = scenario.build_chain()
+    n = chain.n
+    vary = _map_vary(args, n, "a flip map")
+    if args.link is not None and not 1 <= args.link <= n:
+        raise mp.InputError(f"--link must be between 1 and {n}, got {args.link}")
+    _map_output(args)
+    t_max = scenario.t_end if args.t_max is None else args.t_max
+    link = None if args.link is None else args.link - 1
+    _fractal_budget(args, n, t_max)
+    x, y = _map_axes(args, vary)
     kwargs = dict(t_max=t_max, dt=args.dt, vary=vary, base_theta=scenario.theta0, base_omega=scenario.omega0,
                   link=link)
     # Arguments checked on no states, so that a bad one fails here and not in the first block.
@@ -672,6 +708,175 @@ def _cmd_fractal(args) -> int:
     path = plot_flip_map(fm, args.output, chain=chain, vary=vary, base_theta=scenario.theta0,
                          base_omega=scenario.omega0, title=f"{title}: time of the first flip"
                          + ("" if link is None else f" of link {link + 1}"), dpi=args.dpi, log=not args.linear)
+    _say(args, f"wrote {path}")
+    return 0
+
+
+@command
+def _add_atlas(sub, common) -> None:
+    import multipendulum as mp
+
+    choices = (*mp.INDICATORS, "flip")
+    p = sub.add_parser(
+        "atlas", parents=[common], help="map of a chaos indicator of a scenario's chain (PNG; optionally Dask, Zarr)",
+        description="Release the scenario's chain from the grid of initial states `fractal` uses (by default "
+                    "theta_1 against theta_2 over -180..180 degrees, the other values from the scenario's "
+                    "[initial]) and colour each by a chaos indicator at --t-end, computed with the "
+                    "variational equations: MEGNO, FLI, OFLI, SALI, GALI_k (with --k) or the largest "
+                    "Lyapunov exponent. --indicator flip draws the flip-time map, exactly as `fractal` "
+                    "does (--t-end is then its --t-max). The map is of the free chain (a scenario's "
+                    "torque is not applied); its damping and friction are in it. Runs on all cores; "
+                    "--dask spreads it over a cluster and --zarr writes it chunk by chunk.",
+    )
+    _add_map_options(p, zarr_what="values, x, y; with --indicator flip times, allowed, x, y")
+    p.add_argument("--indicator", choices=choices, default="megno", metavar="NAME",
+                   help=f"what to map: one of {', '.join(choices)} (default megno)")
+    p.add_argument("--k", type=int, metavar="K", help="GALI's order, 2 <= K <= 2N (--indicator gali only)")
+    p.add_argument("--t-end", type=float, metavar="SECONDS",
+                   help="the time at which the indicator is taken (flip: how long to wait for a flip); "
+                        "default: the scenario's t_end")
+    p.add_argument("--dt", type=float, metavar="SECONDS",
+                   help=f"rk4 step (default {_indicator_dt():g} for the indicators, {FLIP_DT:g} for flip)")
+    _add_flip_options(p, only="; --indicator flip only")
+    p.set_defaults(handler=_cmd_atlas)
+
+
+def _indicator_dt() -> float:
+    """mp.indicator_map's own default step."""
+    import inspect
+
+    import multipendulum as mp
+
+    return float(inspect.signature(mp.indicator_map).parameters["dt"].default)
+
+
+#: The rule of thumb the summary counts "chaotic-looking" cells by, for the indicators that have one.
+_CHAOTIC = {"megno": (">", 4.0), "sali": ("<", 1e-8), "gali": ("<", 1e-8)}
+
+
+def _atlas_stats(values, name: str, rows: int = 256):
+    """min, mean and max of the finite values, the number of cells without one, and the number
+    the rule of thumb calls chaotic (None without a rule); a block of rows at a time (the map may
+    be a Zarr store larger than memory)."""
+    import numpy as np
+
+    lo, hi, total, finite, bad, chaotic = np.inf, -np.inf, 0.0, 0, 0, 0
+    rule = _CHAOTIC.get(name)
+    for r in range(0, values.shape[0], rows):
+        v = np.asarray(values[r:r + rows], dtype=float)
+        ok = np.isfinite(v)
+        good = v[ok]
+        bad += int((~ok).sum())
+        if good.size:
+            lo, hi = min(lo, float(good.min())), max(hi, float(good.max()))
+            total += float(good.sum())
+            finite += int(good.size)
+        if rule is not None:
+            chaotic += int((good > rule[1]).sum() if rule[0] == ">" else (good < rule[1]).sum())
+    mean = total / finite if finite else float("nan")
+    return lo, mean, hi, bad, (chaotic if rule is not None else None)
+
+
+def _atlas_budget(args, n: int, t_end: float, dt: float, what: str) -> None:
+    """Refuse, before any grid exists, an indicator map that would not fit in memory or take
+    too long (as `fractal` refuses a flip-time map)."""
+    import math
+
+    import multipendulum as mp
+
+    size = args.size
+    cells = float(size) * size
+    sweep = args.dask is not None or args.zarr is not None or args.chunks is not None
+    if args.zarr is None:
+        # Here: the grid's initial states and the values (mp.indicator_map); on Dask: the values
+        # gathered and Dask's pieces of them.
+        need = cells * 16.0 if sweep else cells * (2 * n + 1) * 8.0
+        mp._core.check_memory(need, f"{what} of {size} x {size} initial states",
+                              "use a smaller --size, or --zarr PATH to write the map chunk by chunk "
+                              "(with --dask ADDRESS to compute it on a cluster)")
+    if args.dask is None and math.isfinite(t_end) and t_end > 0 and math.isfinite(dt) and dt > 0:
+        steps = math.ceil(t_end / dt)
+        work = cells * steps
+        if work > MAX_LOCAL_MAP_STEPS:
+            raise mp.InputError(
+                f"{what} of {size} x {size} initial states with t_end / dt = {steps:.4g} steps each is "
+                f"{work:.3g} rk4 steps, more than the {MAX_LOCAL_MAP_STEPS:.0e} one machine is given (hours of "
+                "work); use a smaller --size, a shorter --t-end or a larger --dt, or spread it over a cluster "
+                "with --dask ADDRESS")
+
+
+def _cmd_atlas(args) -> int:
+    import numpy as np
+
+    import multipendulum as mp
+    from .fractal import indicator_label, plot_indicator_map
+    from .scenario import load_scenario
+
+    name = args.indicator
+    if name != "gali" and args.k is not None:
+        raise mp.InputError(f"--k is GALI's order (--indicator gali); {name} takes none")
+    if name == "flip":
+        # The flip-time map is `fractal`'s, made by the same code: --t-end is its --t-max.
+        args.t_max = args.t_end
+        args.dt = FLIP_DT if args.dt is None else args.dt
+        return _cmd_fractal(args)
+    for option, given in (("--link", args.link is not None), ("--linear", args.linear)):
+        if given:
+            raise mp.InputError(f"{option} is for --indicator flip only (a flip-time map)")
+    scenario = load_scenario(args.scenario)
+    chain = scenario.build_chain()
+    n = chain.n
+    if name == "gali" and (args.k is None or not 2 <= args.k <= 2 * n):
+        got = "none given" if args.k is None else f"got {args.k}"
+        raise mp.InputError(f"--indicator gali needs --k K, its order, between 2 and 2N = {2 * n}; {got}")
+    label = indicator_label(name, args.k)
+    vary = _map_vary(args, n, f"a {label} map")
+    _map_output(args)
+    t_end = scenario.t_end if args.t_end is None else args.t_end
+    dt = _indicator_dt() if args.dt is None else args.dt
+    for option, value in (("--t-end", t_end), ("--dt", dt)):
+        _check_positive(option, value)
+    _atlas_budget(args, n, t_end, dt, f"a {label} map")
+    x, y = _map_axes(args, vary)
+    base_theta, base_omega = np.asarray(scenario.theta0, float), np.asarray(scenario.omega0, float)
+    kwargs = dict(t_end=t_end, indicator=name, k=args.k, dt=dt, vary=vary, base_theta=base_theta,
+                  base_omega=base_omega)
+    # Arguments checked on one state (the core refuses an empty batch only after checking them):
+    # a bad one fails here, before the header and the work.
+    mp.indicator(chain, base_theta[None], base_omega[None], t_end, name, k=args.k, dt=dt)
+    title = scenario.name or args.scenario.stem
+    _say(args, f"{title}: {label} map of {args.size} x {args.size} initial states, N = {n}, "
+               f"t_end = {t_end:g} s, dt = {dt:g} s")
+    if scenario.torque is not None:
+        _say(args, "  note: the scenario's torque is not applied; the map is of the free chain")
+    start = time.perf_counter()
+    with ProgressBar(f"{name} map", quiet=args.quiet) as bar:
+        if args.dask is not None or args.zarr is not None or args.chunks is not None:
+            from .sweeps import sweep_indicator_map
+
+            try:
+                im = sweep_indicator_map(chain, x, y, chunks=args.chunks, scheduler=args.dask, zarr=args.zarr,
+                                         progress=bar, **kwargs)
+            except ImportError as exc:
+                return _error(str(exc))
+        else:
+            im = mp.indicator_map(chain, x, y, progress=bar, **kwargs)
+        bar(1.0)
+    wall = time.perf_counter() - start
+    total = args.size * args.size
+    lo, mean, hi, bad, chaotic = _atlas_stats(im.values, name)
+    line = f"  {label} at t_end: min {lo:.4g}, mean {mean:.4g}, max {hi:.4g}" if bad < total \
+        else f"  {label} at t_end: no finite value"
+    if bad:
+        line += f"; no finite value {100 * bad / total:.1f}%"
+    if chaotic is not None:
+        op, level = _CHAOTIC[name]
+        line += f"; {100 * chaotic / total:.1f}% with {label} {op} {level:g} (chaotic by the usual rule of thumb)"
+    _say(args, line + f"; wall time {wall:.3g} s")
+    if args.zarr is not None:
+        _say(args, f"wrote {args.zarr}")
+    path = plot_indicator_map(im, args.output, chain=chain, vary=vary, base_theta=base_theta, base_omega=base_omega,
+                              k=args.k, title=f"{title}: {label} at t = {t_end:g} s", dpi=args.dpi)
     _say(args, f"wrote {path}")
     return 0
 

@@ -1,4 +1,5 @@
-"""Pictures of flip-time maps (:func:`multipendulum.flip_map`, :func:`multipendulum.sweep_flip_map`).
+"""Pictures of flip-time maps (:func:`multipendulum.flip_map`, :func:`multipendulum.sweep_flip_map`)
+and of chaos-indicator maps (:func:`multipendulum.indicator_map`, :func:`plot_indicator_map`).
 
 Each pixel is one initial state, coloured by the time its first flip took (a perceptual colour
 map, logarithmic in time, with a colour bar in seconds). Two kinds of pixel never flip, and
@@ -9,20 +10,26 @@ by the energy-bound curve ``E(x, y) = E_flip``; where a flip was possible but di
 
 Nothing is computed here except the energy on the plotting grid, by the core
 (``chain.energy``), to draw the bound as a smooth curve.
+
+An indicator map is coloured by the indicator's value at ``t_end``, on a scale chosen per
+indicator (:data:`INDICATOR_STYLES`) so that chaotic orbits are at the bright end of the colour
+map for every indicator: MEGNO linear on [0, 8] with its regular value 2 marked, FLI and OFLI
+linear, SALI and GALI logarithmic with a floor at 1e-16, the Lyapunov exponent linear in 1/s.
 """
 from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Optional, Sequence, Tuple, Union
+from typing import NamedTuple, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
 from ._chain import Chain, as_state
-from .chaos import FlipMap
+from .chaos import FlipMap, IndicatorMap
 from .errors import InputError
 
-__all__ = ["plot_flip_map", "energy_grid", "axis_label", "check_picture", "MAX_SIDE"]
+__all__ = ["plot_flip_map", "plot_indicator_map", "indicator_label", "INDICATOR_STYLES", "LOG_FLOOR", "energy_grid",
+           "axis_label", "check_picture", "MAX_SIDE"]
 
 PathLike = Union[str, "os.PathLike[str]"]
 CMAP = "viridis"
@@ -104,6 +111,30 @@ def _fixed_values(chain, vary, base_theta, base_omega) -> str:
     if all(p.endswith("= 0") for p in parts):
         return ""
     return ", ".join(parts)
+
+
+def _label_axes(ax, extent, vary) -> None:
+    """Limits, ticks every 45 or 90 degrees along a wide angle axis, and the axis labels."""
+    kx, ix, ky, iy = vary
+    ax.set_xlim(extent[0], extent[1])
+    ax.set_ylim(extent[2], extent[3])
+    for axis, kind, (lo, hi) in ((ax.xaxis, kx, extent[:2]), (ax.yaxis, ky, extent[2:])):
+        if kind == "theta" and hi - lo >= 180:
+            step = 90 if hi - lo >= 270 else 45
+            axis.set_ticks(np.arange(np.ceil(lo / step - 1e-9) * step, hi + 1e-9 * step, step))
+    ax.set_xlabel(axis_label(kx, ix))
+    ax.set_ylabel(axis_label(ky, iy))
+
+
+def _save(fig, path: PathLike) -> Path:
+    """Write the figure to ``path`` atomically, in the format its suffix names (PNG by default)."""
+    from ._files import atomic_path
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format=path.suffix.lstrip(".").lower() or "png")
+    return path
 
 
 def plot_flip_map(fm: FlipMap, path: Optional[PathLike] = None, chain: Optional[Chain] = None,
@@ -188,14 +219,7 @@ def plot_flip_map(fm: FlipMap, path: Optional[PathLike] = None, chain: Optional[
         ax.imshow(np.ones_like(times), origin="lower", extent=extent, cmap=matplotlib.colors.ListedColormap(
             [FORBIDDEN_COLOR]), aspect="auto", zorder=2)
 
-    ax.set_xlim(extent[0], extent[1])
-    ax.set_ylim(extent[2], extent[3])
-    for axis, kind, (lo, hi) in ((ax.xaxis, kx, extent[:2]), (ax.yaxis, ky, extent[2:])):
-        if kind == "theta" and hi - lo >= 180:
-            step = 90 if hi - lo >= 270 else 45
-            axis.set_ticks(np.arange(np.ceil(lo / step - 1e-9) * step, hi + 1e-9 * step, step))
-    ax.set_xlabel(axis_label(kx, ix))
-    ax.set_ylabel(axis_label(ky, iy))
+    _label_axes(ax, extent, (kx, ix, ky, iy))
     frac = lambda m: f"{100 * m.mean():.1f}%"  # noqa: E731
     handles = [
         Patch(facecolor=NEVER_COLOR, edgecolor="0.3", lw=0.6, label=f"no flip by t = {t_max:g} s ({frac(never)})"),
@@ -212,10 +236,176 @@ def plot_flip_map(fm: FlipMap, path: Optional[PathLike] = None, chain: Optional[
     ax.set_title(subtitle + (f"; {fixed}" if fixed else ""), fontsize=8, color="0.3")
     if path is None:
         return fig
-    from ._files import atomic_path
+    return _save(fig, path)
 
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format=path.suffix.lstrip(".").lower() or "png")
-    return path
+
+# ----------------------------------------------------------------------------------------------
+# Chaos-indicator maps
+
+
+class IndicatorStyle(NamedTuple):
+    """How an indicator's map is drawn."""
+
+    #: its name in titles and summaries (GALI gets its order appended)
+    name: str
+    #: the colour bar's label
+    label: str
+    #: "linear" or "log" (log: values below :data:`LOG_FLOOR` drawn at the floor)
+    scale: str
+    #: the colour scale's limits, or None for the map's own range
+    limits: Optional[Tuple[float, float]]
+    #: reversed colours: for the indicators that are small on chaotic orbits
+    reverse: bool = False
+    #: a value marked on the colour bar, and its label
+    mark: Optional[Tuple[float, str]] = None
+
+
+#: The smallest SALI or GALI drawn: round-off level, where a chaotic orbit's index ends up.
+LOG_FLOOR = 1e-16
+#: How each of :data:`multipendulum.INDICATORS` is drawn (an indicator not listed: linear, its
+#: own range).
+INDICATOR_STYLES = {
+    "megno": IndicatorStyle("MEGNO", r"MEGNO $\langle Y \rangle$ (2: regular; grows ~ $\lambda t / 2$ if chaotic)",
+                            "linear", (0.0, 8.0), mark=(2.0, "2 regular")),
+    "fli": IndicatorStyle("FLI", r"FLI $\sup\, \ln |d|$ (~ $\ln t$ regular, ~ $\lambda t$ chaotic)", "linear", None),
+    "ofli": IndicatorStyle("OFLI", r"OFLI, orthogonal FLI (bounded on periodic orbits)", "linear", None),
+    "sali": IndicatorStyle("SALI", r"SALI (log scale; -> 0 chaotic, > 0 regular)", "log", (LOG_FLOOR, np.sqrt(2.0)),
+                           reverse=True),
+    "gali": IndicatorStyle("GALI", r"GALI (log scale; -> 0 fast if chaotic)", "log", (LOG_FLOOR, 1.0), reverse=True),
+    "lyapunov": IndicatorStyle("Lyapunov exponent", "largest Lyapunov exponent, finite-time estimate (1/s)",
+                               "linear", None),
+}
+
+
+def _style(name: str) -> IndicatorStyle:
+    return INDICATOR_STYLES.get(name, IndicatorStyle(name.upper(), name, "linear", None))
+
+
+def indicator_label(name: str, k=None) -> str:
+    """The indicator's name as titles give it: ``"MEGNO"``, ``"GALI_3"`` (with its order ``k``)."""
+    base = _style(name).name
+    return f"{base}_{int(k)}" if name == "gali" and k is not None else base
+
+
+def _chain_words(chain: Optional[Chain]) -> str:
+    """The chain in a few words: "double pendulum, l = 1, 1 m, m = 1, 1 kg"."""
+    if chain is None:
+        return ""
+    n = chain.n
+    kind = {1: "pendulum", 2: "double pendulum", 3: "triple pendulum"}.get(n, f"{n}-link chain")
+    fmt = lambda v: ", ".join(f"{float(a):.3g}" for a in v)  # noqa: E731
+    if n <= 4:
+        words = f"{kind}, l = {fmt(chain.lengths)} m, m = {fmt(chain.masses)} kg"
+    else:
+        words = f"{kind}, length {float(np.sum(chain.lengths)):.3g} m, mass {float(np.sum(chain.masses)):.3g} kg"
+    if chain.dissipative:
+        words += ", with losses"
+    return words
+
+
+def _limits(values: np.ndarray, style: IndicatorStyle, vmin, vmax) -> Tuple[float, float]:
+    lo, hi = style.limits if style.limits is not None else (None, None)
+    finite = values[np.isfinite(values)]
+    if lo is None:
+        lo = float(finite.min()) if finite.size else 0.0
+    if hi is None:
+        hi = float(finite.max()) if finite.size else 1.0
+    lo = lo if vmin is None else float(vmin)
+    hi = hi if vmax is None else float(vmax)
+    if not hi > lo:
+        pad = 0.5 if style.scale == "linear" else 10.0
+        lo, hi = (lo - pad, hi + pad) if style.scale == "linear" else (lo / pad, hi * pad)
+    return lo, hi
+
+
+def plot_indicator_map(im: IndicatorMap, path: Optional[PathLike] = None, chain: Optional[Chain] = None,
+                       vary: Sequence = ("theta", 0, "theta", 1), base_theta=None, base_omega=None, k=None,
+                       title: Optional[str] = None, dpi: float = 150, size: float = 6.4, vmin=None, vmax=None):
+    """Draw a chaos-indicator map (:func:`multipendulum.indicator_map` or
+    :func:`multipendulum.sweep_indicator_map`); write it to ``path`` (PNG, atomically) and return
+    the path, or return the Matplotlib figure when ``path`` is None.
+
+    Each pixel is one initial state, coloured by the indicator at ``t_end`` on its own scale
+    (:data:`INDICATOR_STYLES`): MEGNO linear on [0, 8] with 2 (regular) marked on the colour bar,
+    FLI and OFLI linear over the map's range, SALI and GALI logarithmic down to
+    :data:`LOG_FLOOR` (smaller values, zero included, drawn at the floor), the largest Lyapunov
+    exponent linear in 1/s. Chaotic orbits are at the bright end for every indicator; values
+    beyond the scale get an arrow on the colour bar; a cell without a finite value is white.
+    ``vmin``/``vmax`` override the scale's limits. The title names the indicator (``k``: GALI's
+    order), ``t_end`` and, given ``chain``, the chain (``title`` replaces it); ``vary``,
+    ``base_theta`` and ``base_omega`` (those the map was made with) label the axes and list the
+    initial values not varied. Grids larger than 2048 along an axis are thinned for the picture.
+    """
+    import matplotlib
+    from matplotlib.colors import LogNorm, Normalize
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Patch
+
+    from .plotting import fit_title
+
+    if not isinstance(im, IndicatorMap):
+        raise InputError(f"im must be a multipendulum.IndicatorMap, got {type(im).__name__}")
+    check_picture(dpi, size)
+    kx, ix, ky, iy = vary
+    x = np.asarray(im.x, dtype=float)
+    y = np.asarray(im.y, dtype=float)
+    sx, sy = _every(x.size), _every(y.size)
+    values = np.asarray(im.values[::sy, ::sx], dtype=float)
+    xs, ys = np.degrees(x[::sx]), np.degrees(y[::sy])
+    if values.shape != (ys.size, xs.size):
+        raise InputError(f"indicator map values must have shape (len(y), len(x)) = {(y.size, x.size)}, "
+                         f"got {tuple(im.values.shape)}")
+    style = _style(im.indicator)
+    k = getattr(im, "k", None) if k is None else k  # the map's own order unless given
+    name = indicator_label(im.indicator, k)
+    t_end = float(im.t_end)
+    finite = np.isfinite(values)
+    shown = np.maximum(values, LOG_FLOOR) if style.scale == "log" else values
+    lo, hi = _limits(shown, style, vmin, vmax)
+    norm = LogNorm(vmin=lo, vmax=hi) if style.scale == "log" else Normalize(lo, hi)
+    below = bool(np.any(shown[finite] < lo * (1 - 1e-12) if lo > 0 else shown[finite] < lo))
+    above = bool(np.any(shown[finite] > hi))
+    extend = {(True, True): "both", (True, False): "min", (False, True): "max"}.get((below, above), "neither")
+
+    fig = Figure(figsize=(size, size * 0.86), dpi=dpi)
+    words = _chain_words(chain)
+    default = f"{name} at t = {t_end:g} s" + (f": {words}" if words else "")
+    heading = fit_title(title or default, 0.94 * size, 11.0, max_lines=2)
+    bottom = 0.16 if finite.all() else 0.2
+    height = 0.90 - bottom - 0.05 * heading.count("\n")
+    ax = fig.add_axes((0.12, bottom, 0.66, height))
+    cax = fig.add_axes((0.81, bottom, 0.03, height))
+    extent = (*_edges(xs), *_edges(ys))
+    cmap = matplotlib.colormaps[CMAP + ("_r" if style.reverse else "")].with_extremes(bad=NEVER_COLOR)
+    image = ax.imshow(np.ma.masked_array(shown, ~finite), origin="lower", extent=extent, cmap=cmap, norm=norm,
+                      interpolation="antialiased", interpolation_stage="rgba", aspect="auto")
+    cb = fig.colorbar(image, cax=cax, extend=extend)
+    label = style.label.replace("GALI", f"GALI$_{{{int(k)}}}$", 1) if im.indicator == "gali" and k is not None \
+        else style.label
+    cb.set_label(label, fontsize=8)
+    if style.scale == "log":
+        decades = np.arange(np.ceil(np.log10(lo) - 1e-9), np.floor(np.log10(hi) + 1e-9) + 1)
+        step = max(1, int(np.ceil(decades.size / 9)))
+        ticks = 10.0 ** decades[::-1][::step][::-1]
+        cb.set_ticks(ticks, labels=[f"$10^{{{int(round(np.log10(t)))}}}$" for t in ticks])
+        cb.ax.minorticks_off()
+    if style.mark is not None and lo <= style.mark[0] <= hi:
+        level, text = style.mark
+        cb.ax.axhline(level, color="white", lw=1.6)
+        cb.ax.axhline(level, color="black", lw=0.6)
+        ticks = sorted(set(np.round(cb.get_ticks(), 12)) | {level})
+        ticks = [t for t in ticks if lo <= t <= hi]
+        cb.set_ticks(ticks, labels=[text if t == level else f"{t:g}" for t in ticks])
+    _label_axes(ax, extent, (kx, ix, ky, iy))
+    if not finite.all():
+        fig.legend(handles=[Patch(facecolor=NEVER_COLOR, edgecolor="0.3", lw=0.6,
+                                  label=f"no finite value ({100 * (~finite).mean():.1f}%)")],
+                   loc="lower center", bbox_to_anchor=(0.46, 0.0), fontsize=8, frameon=False, handlelength=1.8)
+    fig.suptitle(heading, fontsize=11, y=0.975)
+    # The chain is named in the heading, or here when a title replaced it.
+    subtitle = f"{y.size} x {x.size} initial states" + (f"; {words}" if title and words else "")
+    fixed = _fixed_values(chain, (kx, ix, ky, iy), base_theta, base_omega)
+    ax.set_title(subtitle + (f"; {fixed}" if fixed else ""), fontsize=8, color="0.3")
+    if path is None:
+        return fig
+    return _save(fig, path)

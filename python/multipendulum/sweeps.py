@@ -54,7 +54,7 @@ from ._convert import Integer
 from ._progress import check as _check_progress
 from ._progress import reporter
 from ._torque import TorqueLike
-from .chaos import FlipMap, Vary, _check_vary, _grid, flip_threshold, flip_times
+from .chaos import FlipMap, IndicatorMap, Vary, _check_vary, _grid, flip_threshold, flip_times, indicator_fn
 from .errors import InputError
 
 if TYPE_CHECKING:
@@ -70,7 +70,7 @@ Scheduler = Union[None, str, "Client"]
 #: ``progress=``: None or False (none), True (a bar on stderr) or a callable given the fraction done.
 Progress = Union[None, bool, Callable[[float], object]]
 
-__all__ = ["sweep", "sweep_flip_map", "open_flip_map", "DEFAULT_CHUNK_SIZE"]
+__all__ = ["sweep", "sweep_flip_map", "open_flip_map", "sweep_indicator_map", "open_indicator_map", "DEFAULT_CHUNK_SIZE"]
 
 #: Trajectories per task when ``chunks`` is not given: large enough that the Rust kernel's own
 #: parallelism pays off inside a task, small enough to spread a 256 x 256 map over many workers.
@@ -195,7 +195,7 @@ def _check_zarr_path(zarr: Optional[PathLike]) -> Optional[str]:
     return os.fspath(zarr)
 
 
-_KINDS = ("multipendulum.sweep", "multipendulum.flip_map")
+_KINDS = ("multipendulum.sweep", "multipendulum.flip_map", "multipendulum.indicator_map")
 
 
 @contextlib.contextmanager
@@ -393,9 +393,8 @@ def sweep_flip_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_max: floa
     return open_flip_map(path)
 
 
-def open_flip_map(path: PathLike) -> FlipMap:
-    """A flip-time map written by :func:`sweep_flip_map` (or ``multipendulum fractal --zarr``):
-    ``x``, ``y`` read into memory; ``times`` and ``allowed`` left on disk as Zarr arrays."""
+def _open_store(path: PathLike, kind: str, what: str) -> ZarrGroup:
+    """The Zarr group at ``path``, refused unless this package wrote it as ``kind``."""
     try:
         import zarr as _zarr
     except ImportError as exc:
@@ -405,9 +404,118 @@ def open_flip_map(path: PathLike) -> FlipMap:
         group = _zarr.open_group(path, mode="r")
     except Exception as exc:  # zarr raises several kinds for a missing or foreign store
         raise InputError(f"{path}: not a Zarr store ({exc})") from exc
-    if group.attrs.get("kind") != "multipendulum.flip_map":
-        raise InputError(f"{path}: not a flip-time map written by multipendulum")
+    if group.attrs.get("kind") != kind:
+        raise InputError(f"{path}: not {what} written by multipendulum")
+    return group
+
+
+def open_flip_map(path: PathLike) -> FlipMap:
+    """A flip-time map written by :func:`sweep_flip_map` (or ``multipendulum fractal --zarr``):
+    ``x``, ``y`` read into memory; ``times`` and ``allowed`` left on disk as Zarr arrays."""
+    group = _open_store(path, "multipendulum.flip_map", "a flip-time map")
     # The store's members are arrays and its attributes numbers, as sweep_flip_map wrote them.
     return FlipMap(np.asarray(cast("ZarrArray", group["x"])[:]), np.asarray(cast("ZarrArray", group["y"])[:]),
                    cast("ZarrArray", group["times"]), cast("ZarrArray", group["allowed"]),
                    float(cast(float, group.attrs["t_max"])), float(cast(float, group.attrs["threshold"])))
+
+
+# ----------------------------------------------------------------------------------------------
+# Chaos-indicator maps: as flip-time maps, each task building its own part of the grid
+
+
+def _map_indicator_block(yb: npt.NDArray[np.float64], xb: npt.NDArray[np.float64], chain: Chain,
+                         vary: Tuple[str, int, str, int], th_base: npt.NDArray[np.float64],
+                         om_base: npt.NDArray[np.float64], t_end: float, indicator: str, k: Optional[Integer],
+                         dt: float, torque: Optional[TorqueLike]) -> npt.NDArray[np.float64]:
+    theta0, omega0 = _grid(yb, xb, vary, th_base, om_base)
+    return cast("npt.NDArray[np.float64]",  # a batch: the values at t_end, shape (rows, columns)
+                indicator_fn(chain, theta0, omega0, t_end, indicator, k=k, dt=dt, torque=torque))
+
+
+def sweep_indicator_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_end: float = 50.0,
+                        indicator: str = "megno", k: Optional[Integer] = None, dt: float = 0.005,
+                        vary: Vary = ("theta", 0, "theta", 1), base_theta: Optional[npt.ArrayLike] = None,
+                        base_omega: Optional[npt.ArrayLike] = None, torque: Optional[TorqueLike] = None,
+                        chunks: Union[None, Integer, Tuple[Integer, Integer]] = None, scheduler: Scheduler = None,
+                        zarr: Optional[PathLike] = None, progress: Progress = None) -> IndicatorMap:
+    """:func:`multipendulum.indicator_map` on Dask, for grids too large for one process.
+
+    Same arguments and the same result (bit for bit: each cell's value does not depend on what
+    is computed with it) as ``indicator_map``; in addition ``chunks``, ``scheduler`` and ``zarr``
+    as for :func:`sweep_flip_map`. Each task builds its own part of the initial grid from ``x``
+    and ``y`` and calls :func:`multipendulum.indicator` on it.
+
+    The arguments (``indicator``, ``k``, ``t_end``, ``dt``, ``torque``) are checked before any task
+    starts, by the indicator of the base state alone (one trajectory's work).
+
+    With ``zarr``, the store gets the array ``values`` (written chunk by chunk by the tasks) plus
+    ``x`` and ``y`` and the attributes ``indicator``, ``k``, ``t_end``, ``dt``, ``vary``,
+    ``base_theta``, ``base_omega`` and ``chain``; the returned map's ``values`` is then the on-disk
+    Zarr array (index it to read a part). :func:`open_indicator_map` opens such a store again.
+    Without ``zarr`` the whole map is gathered here: refused before any task starts when it
+    would not fit in memory (advice: ``zarr``). ``progress`` as for :func:`sweep`.
+
+    >>> import numpy as np, multipendulum as mp
+    >>> from multipendulum.sweeps import sweep_indicator_map
+    >>> chain, x = mp.Chain([1, 1], [1, 1]), np.linspace(-2.5, 2.5, 6)
+    >>> m = sweep_indicator_map(chain, x, x, t_end=5.0, chunks=(4, 3))
+    >>> bool(np.array_equal(m.values, mp.indicator_map(chain, x, x, t_end=5.0).values))
+    True
+    """
+    dask, da = _dask()
+    _check_progress(progress)
+    if not isinstance(chain, Chain):
+        raise InputError(f"chain must be a multipendulum.Chain, got {type(chain).__name__}")
+    x, y = np.asarray(x, dtype=float).ravel(), np.asarray(y, dtype=float).ravel()
+    n = chain.n
+    for name, v in (("x", x), ("y", y)):
+        if v.size == 0 or not np.isfinite(v).all():
+            raise InputError(f"{name} must be a non-empty array of finite numbers")
+    th_base = np.zeros(n) if base_theta is None else as_state(base_theta, "base_theta", n)
+    om_base = np.zeros(n) if base_omega is None else as_state(base_omega, "base_omega", n)
+    if th_base.ndim != 1 or om_base.ndim != 1:
+        raise InputError(f"base_theta and base_omega must have shape ({n},)")
+    vary = _check_vary(vary, n)
+    path = _check_zarr_path(zarr)
+    # Checks, here rather than in every task: the core refuses an empty batch after checking the
+    # arguments, so one state (the base state, as a batch of one: no history) is run instead.
+    indicator_fn(chain, th_base[None], om_base[None], t_end, indicator, k=k, dt=dt, torque=torque)
+    rows, cols = _chunk_shape(chunks, y.size, x.size)
+    rows, cols = min(rows, y.size), min(cols, x.size)
+    _check_chunks(rows, cols, n, -(-y.size // rows) * -(-x.size // cols))
+    if path is None:
+        # Gathered here: the value (8 bytes) of every cell, and Dask's pieces of them until joined.
+        _core.check_memory(float(x.size) * y.size * 8.0 * 2,
+                           f"gathering an indicator map of {y.size} x {x.size} cells",
+                           "pass zarr=PATH to write it chunk by chunk instead (multipendulum atlas --zarr)")
+    Y = da.from_array(y, chunks=rows)
+    X = da.from_array(x, chunks=cols)
+    kernel = functools.partial(_map_indicator_block, chain=chain, vary=vary, th_base=th_base, om_base=om_base,
+                               t_end=float(t_end), indicator=indicator, k=k, dt=float(dt), torque=torque)
+    values = da.blockwise(kernel, "ij", Y, "i", X, "j", dtype=np.float64, meta=np.empty((0, 0)))
+    label = f"{indicator} map"
+    if path is None:
+        with _scheduler(scheduler) as how, reporter(progress, label) as report:
+            (v,) = _compute(dask, how, report, values)
+        return IndicatorMap(x, y, v, indicator, float(t_end), None if k is None else int(k))
+    attrs = {"indicator": indicator, "k": None if k is None else int(k), "t_end": float(t_end), "dt": float(dt),
+             "vary": list(vary), "base_theta": th_base.tolist(), "base_omega": om_base.tolist(),
+             "chain": chain.to_dict()}
+    with _fresh_store(path, "multipendulum.indicator_map", attrs), _scheduler(scheduler) as how, \
+            reporter(progress, label) as report:
+        stores = [da.to_zarr(values, path, component="values", compute=False)]
+        stores += [da.to_zarr(da.from_array(v, chunks=v.size), path, component=name, compute=False)
+                   for name, v in (("x", x), ("y", y))]
+        _compute(dask, how, report, *stores)
+    return open_indicator_map(path)
+
+
+def open_indicator_map(path: PathLike) -> IndicatorMap:
+    """A chaos-indicator map written by :func:`sweep_indicator_map` (or ``multipendulum atlas
+    --zarr``): ``x``, ``y`` read into memory; ``values`` left on disk as a Zarr array. The store's
+    attributes (``k``, ``dt``, ``vary``, the chain...) are in ``zarr.open_group(path).attrs``."""
+    group = _open_store(path, "multipendulum.indicator_map", "a chaos-indicator map")
+    k = group.attrs.get("k")
+    return IndicatorMap(np.asarray(cast("ZarrArray", group["x"])[:]), np.asarray(cast("ZarrArray", group["y"])[:]),
+                        cast("ZarrArray", group["values"]), str(group.attrs["indicator"]),
+                        float(cast(float, group.attrs["t_end"])), None if k is None else int(cast(int, k)))
