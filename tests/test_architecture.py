@@ -27,7 +27,7 @@ ROOT_IMPORT = re.compile(r"^\s*(import multipendulum(?!\._core as _core\b)|from 
 
 
 @pytest.mark.parametrize("module", ["viewer", "fractal", "modes", "animation", "plotting", "results", "scenario",
-                                    "sweeps", "chaos", "_simulate", "checkpoint", "_lyapunov", "_indicators", "_chain", "_base", "_torque",
+                                    "sweeps", "chaos", "_simulate", "checkpoint", "_lyapunov", "_indicators", "_zero_one", "_chain", "_base", "_torque",
                                     "_convert", "_progress", "_files", "_frames", "errors"])
 def test_api_modules_import_only_the_core_from_the_package_root(module):
     code = "\n".join(line for line in (PKG / f"{module}.py").read_text().splitlines()
