@@ -1,10 +1,11 @@
 //! The ideal chain's accelerations for many states at once, in lanes (structure of arrays:
 //! `theta[link][lane]`): plain loops over fixed-size arrays that LLVM vectorises across states.
-//! The arithmetic is [`Chain::accelerations_into`]'s, operation for operation and unfused (so
-//! the AVX-512, AVX2 and portable builds give the same bits): the closed form of two links, the
-//! O(N) recursion (`eliminate`, `substitute`) otherwise. Only `sin`/`cos` differ: the lanes'
-//! fdlibm kernels ([`crate::trig::lanes`], within 1 ulp of glibc's), so a state agrees with the
-//! per-state route to round-off, not bit for bit.
+//! The arithmetic is [`Chain::accelerations_into`]'s: the closed form of two links, the O(N)
+//! recursion (`eliminate`, `substitute`) otherwise, with the lanes' fdlibm `sin`/`cos`
+//! ([`crate::trig::lanes`], within 1 ulp of glibc's) and, as the flip kernel does, its
+//! product-sums fused by explicit `mul_add` (one correctly rounded operation: a hardware FMA on
+//! the AVX paths, glibc's exact `fma()` on the portable one, so every path gives the same bits).
+//! A state therefore agrees with the per-state route to round-off, not bit for bit.
 use super::{Singular, PIVOT_TOL};
 use crate::model::Chain;
 use crate::trig::lanes::{sin_cos, Lane, LANES};
@@ -92,16 +93,17 @@ fn double(
     let (s2, c2) = sin_cos(&theta[1]);
     let mut ok = [true; LANES];
     let (mut a0, mut a1) = ([0.0; LANES], [0.0; LANES]);
+    let (gh1, gh2, d1d2) = (g * h1, g * h2, d1 * d2);
     for i in 0..LANES {
-        let (s12, c12) = (s1[i] * c2[i] - c1[i] * s2[i], c1[i] * c2[i] + s1[i] * s2[i]);
-        let r1 = tau[0][i] - g * h1 * s1[i] - k * s12 * omega[1][i] * omega[1][i];
-        let r2 = tau[1][i] - g * h2 * s2[i] + k * s12 * omega[0][i] * omega[0][i];
+        let (s12, c12) = (s1[i].mul_add(c2[i], -(c1[i] * s2[i])), c1[i].mul_add(c2[i], s1[i] * s2[i]));
+        let r1 = (-gh1).mul_add(s1[i], tau[0][i]) - k * s12 * omega[1][i] * omega[1][i];
+        let r2 = (-gh2).mul_add(s2[i], tau[1][i]) + k * s12 * omega[0][i] * omega[0][i];
         let kc = k * c12;
-        let det = d1 * d2 - kc * kc;
+        let det = (-kc).mul_add(kc, d1d2);
         ok[i] = det > tol;
         let inv = 1.0 / det;
-        a0[i] = (d2 * r1 - kc * r2) * inv;
-        a1[i] = (d1 * r2 - kc * r1) * inv;
+        a0[i] = d2.mul_add(r1, -(kc * r2)) * inv;
+        a1[i] = d1.mul_add(r2, -(kc * r1)) * inv;
     }
     (out[0], out[1]) = (a0, a1);
     let mut bad = [false; LANES];
@@ -205,6 +207,31 @@ fn recursion(
     }
 }
 
+/// Kinetic and total energy of every lane: `T = 1/2 sum_a d_a w_a^2 + sum_{b<a} l_b h_a w_a w_b
+/// cos(theta_a - theta_b)` (the mass matrix's entries, by prefix sums over the links above, O(N))
+/// and `U = -g sum_a h_a cos theta_a`, as [`Chain::kinetic_energy`] and
+/// [`Chain::potential_energy`] define them.
+#[inline(always)]
+pub fn energies(chain: &Chain, theta: &[Lane], omega: &[Lane], kinetic: &mut Lane, energy: &mut Lane) {
+    let n = theta.len();
+    let (l, h, d, g) = (&chain.lengths[..n], &chain.h[..n], &chain.diag[..n], chain.g);
+    let (mut cu, mut su, mut t2, mut u) = ([0.0; LANES], [0.0; LANES], [0.0; LANES], [0.0; LANES]);
+    for a in 0..n {
+        let (s, c) = sin_cos(&theta[a]);
+        for i in 0..LANES {
+            let w = omega[a][i];
+            t2[i] += w * (d[a] * w + 2.0 * h[a] * (c[i] * cu[i] + s[i] * su[i]));
+            cu[i] += l[a] * w * c[i];
+            su[i] += l[a] * w * s[i];
+            u[i] -= g * h[a] * c[i];
+        }
+    }
+    for i in 0..LANES {
+        kinetic[i] = 0.5 * t2[i];
+        energy[i] = kinetic[i] + u[i];
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -246,6 +273,8 @@ mod tests {
                 &[1.0; LANES],
             )
             .unwrap();
+            let (mut kin, mut en) = ([0.0; LANES], [0.0; LANES]);
+            energies(&chain, &th, &om, &mut kin, &mut en);
             let mut ws = Workspace::new(n);
             for i in 0..LANES {
                 let col = |v: &[Lane]| v.iter().map(|l| l[i]).collect::<Vec<f64>>();
@@ -259,6 +288,10 @@ mod tests {
                         "N = {n}, lane {i}, link {a}"
                     );
                 }
+                let t = chain.kinetic_energy(&col(&th), &col(&om), &mut vec![0.0; n], &mut ws);
+                let e = t + chain.potential_energy(&col(&th));
+                assert!((kin[i] - t).abs() <= 1e-12 * (1.0 + t.abs()), "N = {n}, lane {i}: T");
+                assert!((en[i] - e).abs() <= 1e-12 * (1.0 + e.abs()), "N = {n}, lane {i}: E");
             }
         }
     }

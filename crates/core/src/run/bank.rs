@@ -1,18 +1,18 @@
 //! A bank of ideal chains stepped with rk4 in SIMD lanes, their joint torques held over each call:
 //! the route [`super::live::Steppers`] takes for an ideal chain (no losses, no cart, a fixed
 //! pivot) on rk4's Lagrangian form. Copies go eight to a group of lanes; the groups run in
-//! parallel. The step is [`crate::integrators::Rk4`]'s, operation for operation, on
-//! [`crate::dynamics::lanes`]' accelerations, so a copy agrees with its per-copy [`super::live::Stepper`]
-//! to round-off (the lanes' own `sin`/`cos`); each copy's bits depend neither on the other copies
-//! nor on the number of threads, and are the same on the AVX-512, AVX2 and portable builds.
+//! parallel. The step is [`crate::integrators::Rk4`]'s on [`crate::dynamics::lanes`]'
+//! accelerations, its product-sums fused as the flip kernel's, so a copy agrees with its per-copy
+//! [`super::live::Stepper`] to round-off (the lanes' own `sin`/`cos`, the fused operations); each
+//! copy's bits depend neither on the other copies nor on the number of threads, and are the same
+//! on the AVX-512, AVX2 and portable builds.
 //!
 //! The torques' work is `tau . (theta_end - theta_start)` per call: exact for a torque held
 //! constant, and what rk4 gives the work integral `int tau . omega dt` in exact arithmetic.
 use super::energy::EnergyBalance;
 use super::simulate::Settings;
-use crate::dynamics::lanes::{accelerations, LaneScratch, LaneSingular};
+use crate::dynamics::lanes::{accelerations, energies, LaneScratch, LaneSingular};
 use crate::dynamics::system::NON_FINITE;
-use crate::dynamics::Workspace;
 use crate::error::{Error, Result};
 use crate::model::Chain;
 use crate::par::*;
@@ -62,9 +62,6 @@ struct Group {
     tmp: Vec<Lane>,
     start: Vec<Lane>,
     scratch: LaneScratch,
-    /// The per-copy energy's buffers.
-    ws: Workspace,
-    rows: [Vec<f64>; 3],
 }
 
 /// What a copy keeps besides its lane.
@@ -97,8 +94,6 @@ impl Bank {
             tmp: lanes(2 * n),
             start: lanes(n),
             scratch: LaneScratch::new(n),
-            ws: Workspace::new(n),
-            rows: std::array::from_fn(|_| vec![0.0; n]),
         };
         let groups = vec![group; count.div_ceil(LANES)];
         let mut bank = Bank {
@@ -138,11 +133,10 @@ impl Bank {
             g.y[a][lane] = theta0[a];
             g.y[n + a][lane] = omega0[a];
         }
-        let mut ws = Workspace::new(n);
-        let kinetic = self
-            .chain
-            .kinetic_energy(theta0, omega0, &mut vec![0.0; n], &mut ws);
-        let energy = kinetic + self.chain.potential_energy(theta0);
+        // The energies as the reports compute them (in lanes), so a copy's balance starts at 0.
+        let (mut kinetic, mut energy) = ([0.0; LANES], [0.0; LANES]);
+        energies(&self.chain, &g.y[..n], &g.y[n..], &mut kinetic, &mut energy);
+        let (kinetic, energy) = (kinetic[lane], energy[lane]);
         self.copies[i] = Copy {
             steps: 0,
             work: 0.0,
@@ -226,7 +220,7 @@ impl Bank {
     }
 }
 
-/// Each copy of the group: its state row and `(t, energy, energy_error)`.
+/// Each copy of the group: its state row and `(t, energy, energy_error)` (the energies in lanes).
 fn report(
     chain: &Chain,
     dt: f64,
@@ -236,25 +230,17 @@ fn report(
     balance: &mut [f64],
 ) {
     let n = chain.n();
-    let Group {
-        y,
-        ws,
-        rows: [th, om, scratch],
-        ..
-    } = g;
+    let (mut kinetic, mut energy) = ([0.0; LANES], [0.0; LANES]);
+    energies(chain, &g.y[..n], &g.y[n..], &mut kinetic, &mut energy);
     for (j, c) in copies.iter_mut().enumerate() {
-        for a in 0..n {
-            th[a] = y[a][j];
-            om[a] = y[n + a][j];
+        let row = &mut states[2 * n * j..2 * n * (j + 1)];
+        for (m, v) in row.iter_mut().enumerate() {
+            *v = g.y[m][j];
         }
-        states[2 * n * j..2 * n * j + n].copy_from_slice(th);
-        states[2 * n * j + n..2 * n * (j + 1)].copy_from_slice(om);
-        let kinetic = chain.kinetic_energy(th, om, scratch, ws);
-        let energy = kinetic + chain.potential_energy(th);
         let b = &mut balance[3 * j..3 * j + 3];
         b[0] = c.steps as f64 * dt;
-        b[1] = energy;
-        b[2] = c.balance.observe(kinetic, energy, c.work);
+        b[1] = energy[j];
+        b[2] = c.balance.observe(kinetic[j], energy[j], c.work);
     }
 }
 
@@ -439,7 +425,7 @@ fn rk4(
             let h = if stage < 2 { half } else { dt };
             for ((t, yv), kv) in tmp.iter_mut().zip(y.iter()).zip(k[stage].iter()) {
                 for i in 0..LANES {
-                    t[i] = yv[i] + h * kv[i];
+                    t[i] = h.mul_add(kv[i], yv[i]);
                 }
             }
         }
@@ -457,7 +443,7 @@ fn rk4(
         .zip(k4.iter())
     {
         for i in 0..LANES {
-            t[i] = yv[i] + sixth * (a[i] + 2.0 * (b[i] + c[i]) + d[i]);
+            t[i] = sixth.mul_add(2.0f64.mul_add(b[i] + c[i], a[i]) + d[i], yv[i]);
             poison[i] += t[i] * 0.0;
         }
     }
