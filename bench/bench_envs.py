@@ -665,11 +665,11 @@ def why_missed(rep, tgt, core):
         text += (f" The bare core alone (no Python layer at all) reaches "
                  f"{core['env_steps_per_s'][0]:.3g} env-steps/s, "
                  f"{core['env_steps_per_s'][0] / peer['env_steps_per_s'][0]:.0f}x {PEER_A}")
-        d = (rep.get("single") or {}).get("derived") or {}
-        if d.get("rk4_step_s"):
-            text += (f"; one copy's RK4 step costs {E.fmt_time(d['rk4_step_s'])} (measured "
-                     "below), "
-                     f"{d['rk4_step_s'] / per_rk4:.1f}x the budget")
+        # The bank's cost per RK4 step of one copy, on one core: from the bare core's rate over
+        # all cores (a lone copy pays for a whole group of eight lanes; see the single-env rows).
+        per_step = cores / core["env_steps_per_s"][0] / sub
+        text += (f"; in the SIMD lanes an RK4 step of one copy costs {E.fmt_time(per_step)} of one "
+                 f"core there, {per_step / per_rk4:.1f}x the budget")
         if core["env_steps_per_s"][0] < need:
             text += (": the target is out of the environment layer's reach at these defaults; "
                      "it needs a cheaper core step or fewer substeps per env step.")
