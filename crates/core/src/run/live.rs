@@ -336,6 +336,12 @@ impl Steppers {
                 st.report(row, bal);
                 return None;
             }
+            // A failed copy stays failed until reset (a restart would clear its error).
+            if let Some(e) = st.failure() {
+                let e = e.clone();
+                st.report(row, bal);
+                return Some((i, e));
+            }
             let r = (|| {
                 if let Builtin::Constant(held) = &mut st.torque_mut().0 {
                     held.copy_from_slice(u);
@@ -540,6 +546,27 @@ mod tests {
             assert_eq!(bal[3], 0.2, "the masked copy stayed at t = 0.2");
             assert!(bal.chunks(3).all(|b| b[2] < 1e-7), "the torque's work closes the balance: {bal:?}");
         }
+    }
+
+    #[test]
+    fn a_copy_that_blows_up_in_the_lanes_stops_alone_at_its_last_good_state() {
+        let chain = Chain::rods(&[1.0, 0.7], &[1.0, 0.5], 9.81).unwrap();
+        let mut batch = Steppers::new(&chain, 3, &settings("rk4", Some(0.01))).unwrap();
+        assert!(batch.route().starts_with("lanes:") || std::env::var(super::bank::SWITCH).as_deref() == Ok("scalar"));
+        for i in 0..3 {
+            batch.reset(i, &[0.5, 0.2], &[0.0, 0.0], [0.0; 2]).unwrap();
+        }
+        let u = [0.0, 0.1, 1e200, -1e200, 0.0, 0.0]; // copy 1 driven to overflow
+        let (mut out, mut bal) = (vec![0.0; 12], vec![0.0; 9]);
+        let e = batch.step(&u, &[], 0.2, &[], &mut out, &mut bal).unwrap_err();
+        assert!(matches!(&e, Error::Integration { reason, .. } if reason.starts_with("copy 1: ")), "{e}");
+        assert!(out.iter().all(|v| v.is_finite()), "the failed copy kept a finite state: {out:?}");
+        assert_eq!((bal[0], bal[6]), (0.2, 0.2), "the other copies took their steps");
+        assert!(bal[3] < 0.2, "the failed copy stopped early");
+        assert_eq!(batch.step(&[0.0; 6], &[], 0.2, &[], &mut out, &mut bal).unwrap_err(), e, "it stays failed");
+        batch.reset(1, &[0.5, 0.2], &[0.0, 0.0], [0.0; 2]).unwrap();
+        batch.step(&[0.0; 6], &[], 0.2, &[], &mut out, &mut bal).unwrap();
+        assert_eq!(bal[3], 0.2);
     }
 
     #[test]
