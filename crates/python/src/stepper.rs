@@ -81,7 +81,7 @@ impl PySteppers {
     /// then advance every copy by `span` (whole steps of a fixed-step method's grid), without
     /// the GIL.
     /// `active`: one flag per copy, the copies that move (None: all). Returns the new states
-    /// and balances, as `states()` and `balance()` would.
+    /// and balances, as `report()` does.
     #[pyo3(signature = (torques, forces, span, active=None))]
     fn step<'py>(
         &mut self,
@@ -103,17 +103,12 @@ impl PySteppers {
         Ok((PyArray1::from_vec(py, states), PyArray1::from_vec(py, balance)))
     }
 
-    /// Every copy's state, count x state_len values (flat).
-    fn states<'py>(&mut self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        let mut out = vec![0.0; self.inner.len() * self.inner.state_len()];
-        self.inner.states_into(&mut out);
-        PyArray1::from_vec(py, out)
-    }
-
-    /// Every copy's time, energy (lab frame) and energy-balance residual, count x 3 (flat).
-    fn balance<'py>(&mut self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        let mut out = vec![0.0; self.inner.len() * 3];
-        self.inner.balance_into(&mut out);
-        PyArray1::from_vec(py, out)
+    /// Every copy's state (count x state_len, flat) and its time, energy (lab frame) and
+    /// energy-balance residual (count x 3, flat), as `step` returns them.
+    fn report<'py>(&mut self, py: Python<'py>) -> (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>) {
+        let count = self.inner.len();
+        let (mut states, mut balance) = (vec![0.0; count * self.inner.state_len()], vec![0.0; count * 3]);
+        self.inner.report_into(&mut states, &mut balance);
+        (PyArray1::from_vec(py, states), PyArray1::from_vec(py, balance))
     }
 }

@@ -127,14 +127,17 @@ class Engine:
         states, balance = self._st.step(np.ascontiguousarray(torques, dtype=float).ravel(), f, self.dt, act)
         self._states, self._balance = states.reshape(self.num, -1), balance.reshape(self.num, 3)
 
+    def _report(self) -> Tuple[Array, Array]:
+        """The states and balances of the last step, or (after a reset) the core's report of both."""
+        if self._states is None or self._balance is None:
+            states, balance = self._st.report()
+            self._states, self._balance = states.reshape(self.num, -1), balance.reshape(self.num, 3)
+        return self._states, self._balance
+
     def states(self) -> Array:
         """(B, k): each copy's ``(theta, omega, [x, v])`` (the arrays are the engine's: copy to keep)."""
-        if self._states is None:
-            self._states = self._st.states().reshape(self.num, -1)
-        return self._states
+        return self._report()[0]
 
     def balance(self) -> Array:
         """(B, 3): time, energy (lab frame) and the energy-balance residual of each copy."""
-        if self._balance is None:
-            self._balance = self._st.balance().reshape(self.num, 3)
-        return self._balance
+        return self._report()[1]

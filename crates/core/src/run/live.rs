@@ -190,8 +190,12 @@ impl<T: TorqueSource> Stepper<T> {
     }
 
     /// Restart the integrator from the current state after its inputs changed (what it carried
-    /// from the last step, such as dop853's last derivative, belonged to the old inputs).
+    /// from the last step, such as dop853's last derivative, belonged to the old inputs). A run
+    /// that failed stays failed: its error is returned (a new start is a new stepper).
     pub fn restart(&mut self) -> Result<()> {
+        if let Some(e) = self.run.failure() {
+            return Err(e.clone());
+        }
         let y = self.run.y().to_vec();
         self.run.set_state(&y)
     }
@@ -267,7 +271,8 @@ impl Steppers {
         }
     }
 
-    /// Values per copy in [`Steppers::states_into`]: `theta`, `omega`, then the cart's `x, v`.
+    /// Values per copy in a state row ([`Steppers::report_into`]): `theta`, `omega`, then the
+    /// cart's `x, v`.
     pub fn state_len(&self) -> usize {
         2 * self.chain.n() + 2 * usize::from(self.chain.cart().is_some())
     }
@@ -302,8 +307,8 @@ impl Steppers {
     /// `span = k dt` is exactly k steps; dop853 lands on `t + span`). An input that is not
     /// finite is refused before any copy moves. `active`: which copies move (one flag per copy;
     /// empty: all), the others keep their state and ignore their inputs. Then every copy
-    /// writes its row of `states` and `balance` as [`Steppers::states_into`] and
-    /// [`Steppers::balance_into`] do (in the same parallel pass). The first copy (by index) that
+    /// writes its row of `states` and `balance` as [`Steppers::report_into`] does (in the same
+    /// parallel pass). The first copy (by index) that
     /// fails names itself in the error; it stays failed until reset, the others have taken
     /// their steps.
     pub fn step(&mut self, torques: &[f64], forces: &[f64], span: f64, active: &[bool], states: &mut [f64], balance: &mut [f64]) -> Result<()> {
@@ -335,12 +340,6 @@ impl Steppers {
             if active.get(i) == Some(&false) {
                 st.report(row, bal);
                 return None;
-            }
-            // A failed copy stays failed until reset (a restart would clear its error).
-            if let Some(e) = st.failure() {
-                let e = e.clone();
-                st.report(row, bal);
-                return Some((i, e));
             }
             let r = (|| {
                 if let Builtin::Constant(held) = &mut st.torque_mut().0 {
@@ -377,20 +376,10 @@ impl Steppers {
         }
     }
 
-    /// Every copy's state, count x [`Steppers::state_len`] values.
-    pub fn states_into(&mut self, out: &mut [f64]) {
-        let mut bal = vec![0.0; 3 * self.len()];
-        self.report_into(out, &mut bal);
-    }
-
-    /// Every copy's time, energy (lab frame) and energy-balance residual ([`Stepper::energy_error`]),
-    /// count x 3 values.
-    pub fn balance_into(&mut self, out: &mut [f64]) {
-        let mut rows = vec![0.0; self.state_len() * self.len()];
-        self.report_into(&mut rows, out);
-    }
-
-    fn report_into(&mut self, states: &mut [f64], balance: &mut [f64]) {
+    /// Every copy's state (count x [`Steppers::state_len`] values) and its time, energy (lab
+    /// frame) and energy-balance residual ([`Stepper::energy_error`]; count x 3), as
+    /// [`Steppers::step`] writes them.
+    pub fn report_into(&mut self, states: &mut [f64], balance: &mut [f64]) {
         let k = self.state_len();
         match &mut self.route {
             Route::Each(items) => {
@@ -521,8 +510,8 @@ mod tests {
             batch.step(&u, &[], 0.2, &[], &mut out, &mut bal).unwrap();
             let mask: Vec<bool> = (0..11).map(|i| i != 1).collect();
             batch.step(&u, &[], 0.2, &mask, &mut out, &mut bal).unwrap();
-            let mut again = vec![0.0; out.len()];
-            batch.states_into(&mut again);
+            let (mut again, mut bal_again) = (vec![0.0; out.len()], vec![0.0; bal.len()]);
+            batch.report_into(&mut again, &mut bal_again);
             assert_eq!(again, out, "the step's report is the state's");
             for i in 0..11 {
                 let (th, om) = start(i);
