@@ -101,12 +101,15 @@ class _Acrobot:
         return torque
 
     @staticmethod
-    def _ob(s: Array) -> npt.NDArray[np.float32]:
-        return np.array([np.cos(s[0]), np.sin(s[0]), np.cos(s[1]), np.sin(s[1]), s[2], s[3]], dtype=np.float32)
+    def _observe(s: Array) -> npt.NDArray[np.float32]:
+        """gymnasium's observations of the states ``s`` (B, 4), float32."""
+        return np.stack([np.cos(s[:, 0]), np.sin(s[:, 0]), np.cos(s[:, 1]), np.sin(s[:, 1]), s[:, 2], s[:, 3]],
+                        axis=1).astype(np.float32)
 
     @staticmethod
-    def _terminal(s: Array) -> bool:
-        return bool(-np.cos(s[0]) - np.cos(s[1] + s[0]) > 1.0)
+    def _terminal(s: Array) -> npt.NDArray[np.bool_]:
+        """gymnasium's goal of the states ``s`` (B, 4): the tip above one link's length."""
+        return -np.cos(s[:, 0]) - np.cos(s[:, 1] + s[:, 0]) > 1.0
 
 
 def _wrap(x: Array) -> Array:
@@ -144,7 +147,7 @@ class AcrobotCompatEnv(_Acrobot, gym.Env[Any, Any]):
         self._residual = 0.0
         if self.render_mode == "human":
             self.render()
-        return self._ob(self.state), {"energy_error": 0.0}
+        return self._observe(self.state[None])[0], {"energy_error": 0.0}
 
     def step(self, a: Any) -> Tuple[npt.NDArray[np.float32], float, bool, bool, Dict[str, Any]]:
         if self.state is None:
@@ -156,10 +159,10 @@ class AcrobotCompatEnv(_Acrobot, gym.Env[Any, Any]):
         ns, residual = self._transition(s, np.array([torque]))
         self.state = ns[0]
         self._residual = float(residual[0])
-        terminated = self._terminal(self.state)
+        terminated = bool(self._terminal(self.state[None])[0])
         if self.render_mode == "human":
             self.render()
-        return self._ob(self.state), -1.0 if not terminated else 0.0, terminated, False, {"energy_error": self._residual}
+        return self._observe(self.state[None])[0], -1.0 if not terminated else 0.0, terminated, False, {"energy_error": self._residual}
 
     def render(self) -> Optional[npt.NDArray[np.uint8]]:
         if self.render_mode is None:
@@ -239,10 +242,8 @@ class AcrobotCompatVectorEnv(_Acrobot, VectorEnv[Any, Any, Any]):
         return self._obs(), self._info()
 
     def _obs(self) -> npt.NDArray[np.float32]:
-        s = self.state
-        assert s is not None
-        return np.stack([np.cos(s[:, 0]), np.sin(s[:, 0]), np.cos(s[:, 1]), np.sin(s[:, 1]), s[:, 2], s[:, 3]],
-                        axis=1).astype(np.float32)
+        assert self.state is not None
+        return self._observe(self.state)
 
     def _info(self) -> Dict[str, Any]:
         return {"energy_error": self._residual.copy(), "_energy_error": np.ones(self.num_envs, dtype=np.bool_)}
@@ -266,8 +267,7 @@ class AcrobotCompatVectorEnv(_Acrobot, VectorEnv[Any, Any, Any]):
         for i in np.flatnonzero(restart):
             self._start(int(i))
         self._steps[~restart] += 1
-        s = self.state
-        terminated = ~restart & (-np.cos(s[:, 0]) - np.cos(s[:, 1] + s[:, 0]) > 1.0)
+        terminated = ~restart & self._terminal(self.state)
         truncated = (self._steps >= self.max_episode_steps) & ~restart if self.max_episode_steps is not None \
             else np.zeros(self.num_envs, dtype=np.bool_)
         reward = np.where(terminated | restart, 0.0, -1.0)
