@@ -322,6 +322,25 @@ def _chunk_shape(chunks: Union[None, Integer, Tuple[Integer, Integer]], ny: int,
     return _positive_int(rows, "chunks[0]"), _positive_int(cols, "chunks[1]")
 
 
+def _map_grid(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, base_theta: Optional[npt.ArrayLike],
+              base_omega: Optional[npt.ArrayLike], vary: Vary, zarr: Optional[PathLike]
+              ) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64],
+                         npt.NDArray[np.float64], Tuple[str, int, str, int], Optional[str]]:
+    """A map sweep's grid arguments, checked: ``(x, y, base_theta, base_omega, vary, zarr path)``."""
+    if not isinstance(chain, Chain):
+        raise InputError(f"chain must be a multipendulum.Chain, got {type(chain).__name__}")
+    xs, ys = np.asarray(x, dtype=float).ravel(), np.asarray(y, dtype=float).ravel()
+    n = chain.n
+    for name, v in (("x", xs), ("y", ys)):
+        if v.size == 0 or not np.isfinite(v).all():
+            raise InputError(f"{name} must be a non-empty array of finite numbers")
+    th_base = np.zeros(n) if base_theta is None else as_state(base_theta, "base_theta", n)
+    om_base = np.zeros(n) if base_omega is None else as_state(base_omega, "base_omega", n)
+    if th_base.ndim != 1 or om_base.ndim != 1:
+        raise InputError(f"base_theta and base_omega must have shape ({n},)")
+    return xs, ys, th_base, om_base, _check_vary(vary, n), _check_zarr_path(zarr)
+
+
 def sweep_flip_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_max: float = 10.0, dt: float = 0.01,
                    vary: Vary = ("theta", 0, "theta", 1), base_theta: Optional[npt.ArrayLike] = None,
                    base_omega: Optional[npt.ArrayLike] = None, link: Optional[Integer] = None,
@@ -345,19 +364,8 @@ def sweep_flip_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_max: floa
     """
     dask, da = _dask()
     _check_progress(progress)
-    if not isinstance(chain, Chain):
-        raise InputError(f"chain must be a multipendulum.Chain, got {type(chain).__name__}")
-    x, y = np.asarray(x, dtype=float).ravel(), np.asarray(y, dtype=float).ravel()
+    x, y, th_base, om_base, vary, path = _map_grid(chain, x, y, base_theta, base_omega, vary, zarr)
     n = chain.n
-    for name, v in (("x", x), ("y", y)):
-        if v.size == 0 or not np.isfinite(v).all():
-            raise InputError(f"{name} must be a non-empty array of finite numbers")
-    th_base = np.zeros(n) if base_theta is None else as_state(base_theta, "base_theta", n)
-    om_base = np.zeros(n) if base_omega is None else as_state(base_omega, "base_omega", n)
-    if th_base.ndim != 1 or om_base.ndim != 1:
-        raise InputError(f"base_theta and base_omega must have shape ({n},)")
-    vary = _check_vary(vary, n)
-    path = _check_zarr_path(zarr)
     threshold = flip_threshold(chain, link, torque)
     flip_times(chain, np.zeros((0, n)), t_max=t_max, dt=dt, link=link, torque=torque)  # checks, on no states
     rows, cols = _chunk_shape(chunks, y.size, x.size)
@@ -464,19 +472,8 @@ def sweep_indicator_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_end:
     """
     dask, da = _dask()
     _check_progress(progress)
-    if not isinstance(chain, Chain):
-        raise InputError(f"chain must be a multipendulum.Chain, got {type(chain).__name__}")
-    x, y = np.asarray(x, dtype=float).ravel(), np.asarray(y, dtype=float).ravel()
+    x, y, th_base, om_base, vary, path = _map_grid(chain, x, y, base_theta, base_omega, vary, zarr)
     n = chain.n
-    for name, v in (("x", x), ("y", y)):
-        if v.size == 0 or not np.isfinite(v).all():
-            raise InputError(f"{name} must be a non-empty array of finite numbers")
-    th_base = np.zeros(n) if base_theta is None else as_state(base_theta, "base_theta", n)
-    om_base = np.zeros(n) if base_omega is None else as_state(base_omega, "base_omega", n)
-    if th_base.ndim != 1 or om_base.ndim != 1:
-        raise InputError(f"base_theta and base_omega must have shape ({n},)")
-    vary = _check_vary(vary, n)
-    path = _check_zarr_path(zarr)
     # Checks, here rather than in every task: the core refuses an empty batch after checking the
     # arguments, so one state (the base state, as a batch of one: no history) is run instead.
     indicator_fn(chain, th_base[None], om_base[None], t_end, indicator, k=k, dt=dt, torque=torque)
