@@ -133,16 +133,34 @@ def busy_compilers():
 # ----------------------------------------------------------------------------- machine info
 
 
-def machine_info():
+def cpu_name():
+    """The CPU's model name (/proc/cpuinfo), else what platform knows."""
     cpu = platform.processor() or platform.machine()
     try:
         with open("/proc/cpuinfo") as f:
             for line in f:
                 if line.startswith("model name"):
-                    cpu = line.split(":", 1)[1].strip()
-                    break
+                    return line.split(":", 1)[1].strip()
     except OSError:
         pass
+    return cpu
+
+
+def run_machine():
+    """The machine line of a workload run as a subprocess (bench_model, bench_envs): CPU, cores,
+    OS, Python and NumPy, the date and the load average."""
+    import datetime
+
+    import numpy as np
+
+    return {"cpu": cpu_name(), "cores": os.cpu_count(), "os": platform.platform(),
+            "python": platform.python_version(), "numpy": np.__version__,
+            "date": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
+            "load": " ".join(f"{x:.2f}" for x in os.getloadavg()) if hasattr(os, "getloadavg") else ""}
+
+
+def machine_info():
+    cpu = cpu_name()
     cc = subprocess.run(["cc", "--version"], capture_output=True, text=True).stdout
     rustc = ""
     if shutil.which("rustc"):

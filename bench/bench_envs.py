@@ -14,7 +14,7 @@ bench/bench.py runs it as a subprocess for its section (f) of bench/RESULTS.md).
    - ours: ``gym.make_vec("multipendulum/Acrobot-v0", num_envs=256)`` (its own vector env, the
      defaults), ``multipendulum/CartPole-v0`` and ``multipendulum/AcrobotCompat-v0`` (timed
      only where make_vec returns our own vector env), and for scale the bare core of the
-     first: ``multipendulum._core.Steppers`` of 256 copies, ``step`` over 0.2 s + ``states()``.
+     first: ``multipendulum._core.Steppers`` of 256 copies, ``step`` over 0.2 s + ``report()``.
    The models differ (peer A: the book acrobot, one RK4 step of 0.2 s per env step; peer B:
    MuJoCo's RK4, 5 steps of 0.01 s; ours: 20 RK4 steps of 0.01 s), so no trajectory is
    compared: this is the cost of the environment interface at each one's own physics.
@@ -22,7 +22,7 @@ bench/bench.py runs it as a subprocess for its section (f) of bench/RESULTS.md).
    ends): ``gym.make("multipendulum/Acrobot-v0")`` with the wrappers gym.make adds and its
    ``.unwrapped``; gymnasium's ``Acrobot-v1`` the same two ways; and the bare core:
    ``Steppers(chain._c, 1, method="rk4", ..., dt=0.01)`` on ``Chain.rods([1, 1], [1, 1])``,
-   ``step(torques, zeros(0), 0.2)`` (20 RK4 steps), the same plus ``states()``, and
+   ``step(torques, zeros(0), 0.2)`` (20 RK4 steps), the same plus ``report()``, and
    ``step(..., 0.01)`` (one RK4 step: the Python -> Rust -> Python call itself).
 
 Everything is timed in alternation (bench_engine.measure: one warm-up call, batches, medians of
@@ -32,10 +32,8 @@ the repeats with their ranges); nothing here asserts a speed: ratios and verdict
 from __future__ import annotations
 
 import argparse
-import datetime
 import json
 import os
-import platform
 import sys
 import time
 import traceback
@@ -285,13 +283,13 @@ def bench_vector(mp, gym, quick, repeats):
             k_ours, "ours")
 
     # The core of Acrobot-v0 alone: what the vector env adds on top of it.
-    row = {"key": "core", "label": f"core: Steppers({NUM_ENVS}).step(0.2 s) + states()",
+    row = {"key": "core", "label": f"core: Steppers({NUM_ENVS}).step(0.2 s) + report()",
            "kind": "core", "vector_steps": k_ours}
     rows.append(row)
     try:
         st, *_ = core_steppers(mp, NUM_ENVS)
         step, row["call"] = core_step(st, NUM_ENVS)
-        states = st.states
+        states = st.report
         torques = acrobot_torques(NUM_ENVS, k_ours, 0)
         empty = np.zeros(0)
 
@@ -405,7 +403,7 @@ def bench_single(mp, gym, quick, repeats):
     empty = np.zeros(0)
 
     def core(span, with_states):
-        reset, states = st.reset, st.states
+        reset, states = st.reset, st.report
 
         def go():
             reset(0, th0, om0)  # one reset per k steps: keeps the state bounded
@@ -421,7 +419,7 @@ def bench_single(mp, gym, quick, repeats):
     for key, label, span, states in (
             ("core_span", f"core: Steppers(1).step(torques, zeros(0), {CORE_SPAN:g}) "
                           f"({round(CORE_SPAN / CORE_DT)} RK4 steps)", CORE_SPAN, False),
-            ("core_span_states", f"core: the same + states()", CORE_SPAN, True),
+            ("core_span_states", f"core: the same + report()", CORE_SPAN, True),
             ("core_one", f"core: Steppers(1).step(torques, zeros(0), {CORE_DT:g}) "
                          "(1 RK4 step)", CORE_DT, False)):
         rows.append({"key": key, "label": label, "steps": k, "span": span})
@@ -456,22 +454,6 @@ def bench_single(mp, gym, quick, repeats):
 
 
 # ----------------------------------------------------------------------------- report
-
-
-def machine():
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return {"cpu": cpu, "cores": os.cpu_count(), "os": platform.platform(),
-            "python": platform.python_version(), "numpy": np.__version__,
-            "date": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
-            "load": " ".join(f"{x:.2f}" for x in os.getloadavg())
-            if hasattr(os, "getloadavg") else ""}
 
 
 def us(v):
@@ -529,7 +511,7 @@ def markdown(rep):
             f"{PEER_A}'s transitions, checked below) no trajectory is compared: this is each "
             "environment's cost at its own physics. The core row is "
             "Acrobot-v0's engine alone (`_core.Steppers` of 256 copies, `step` over 0.2 s then "
-            "`states()`), what our vector env costs without its Python layer.")
+            "`report()`), what our vector env costs without its Python layer.")
         L.append("")
         L.append("| environments | vector env | env-steps per second | per vector step | "
                  "episode ends per 1000 env-steps (first pass) | "
@@ -638,7 +620,7 @@ def markdown(rep):
             L.append(f"Of ours' {us(w['s_per_step'][0])} per wrapped step, {wrap_text}, "
                      f"and {us(u['s_per_step'][0] - core['s_per_step'][0])} is the "
                      "environment's own Python (action to torques, observation, reward, "
-                     "termination, info) over the core's step + states().")
+                     "termination, info) over the core's step + report().")
         pa = by.get("peer_unwrapped", {})
         if "s_per_step" in pa and "s_per_step" in u:
             L.append(f"Unwrapped, ours takes {u['s_per_step'][0] / pa['s_per_step'][0]:.2f}x "
@@ -715,7 +697,7 @@ def main(argv=None):
     import multipendulum as mp
 
     t0 = time.perf_counter()
-    rep = {"machine": machine(), "quick": args.quick, "repeats": repeats,
+    rep = {"machine": E.run_machine(), "quick": args.quick, "repeats": repeats,
            "multipendulum": getattr(mp, "__version__", "?"), "versions": versions(),
            "peer_physics": peer_physics(gym)}
     rep["vector"] = {"error": "left out with --only"}

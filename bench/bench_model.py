@@ -30,11 +30,8 @@ theta_i = pi - (q_1 + ... + q_i), omega_i = -(qd_1 + ... + qd_i), x = q_slider.
 from __future__ import annotations
 
 import argparse
-import datetime
 import json
 import math
-import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -365,22 +362,6 @@ def bench_links(mp, quick, repeats):
 # ----------------------------------------------------------------------------- report
 
 
-def machine():
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return {"cpu": cpu, "cores": os.cpu_count(), "os": platform.platform(),
-            "python": platform.python_version(), "numpy": np.__version__,
-            "date": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
-            "load": " ".join(f"{x:.2f}" for x in os.getloadavg())
-            if hasattr(os, "getloadavg") else ""}
-
-
 def rng_t(v):
     return f"{E.fmt_time(v[0])} ({E.fmt_time(v[1])}–{E.fmt_time(v[2])})"
 
@@ -574,7 +555,7 @@ def main(argv=None):
     import multipendulum as mp
 
     t0 = time.perf_counter()
-    rep = {"machine": machine(), "quick": args.quick, "repeats": repeats,
+    rep = {"machine": E.run_machine(), "quick": args.quick, "repeats": repeats,
            "multipendulum": getattr(mp, "__version__", "?")}
     rep["cartpole"] = {"error": "left out with --only"}
     rep["links"] = {"error": "left out with --only"}
