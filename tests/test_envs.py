@@ -284,6 +284,14 @@ def test_unknown_make_keywords_are_input_errors_naming_them():
         gym.make(IDS[0], actuated=[2])
     with pytest.raises(mp.InputError, match="masses"):
         gym.make(IDS[0], masses=[1.0, -1.0])
+    # Limits checked when the environment is made, not in the middle of a step or an allocation.
+    with pytest.raises(mp.InputError, match=r"dt = 1e\+09 s would take 1e\+11 integrator steps, more than 1e\+06"):
+        gym.make(IDS[0], dt=1e9)
+    with pytest.raises(mp.InputError, match="integrator steps, more than"):
+        gym.make(IDS[0], substeps=10**7)
+    for env_id in IDS:
+        with pytest.raises(mp.InputError, match="1000000000 copies of the chain.*use fewer copies"):
+            gym.make_vec(env_id, num_envs=10**9)
     with pytest.raises(mp.InputError, match="com and inertia need links='general'"):
         gym.make(IDS[0], com=0.5)
     with pytest.raises(mp.InputError, match="needs com"):

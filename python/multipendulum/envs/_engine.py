@@ -24,6 +24,11 @@ from ..errors import InputError
 #: tests/test_envs.py for every environment, N = 1 to 4).
 MAX_STEP = 0.01
 
+#: The most integrator steps one env step may take: beyond it a single call into the core would
+#: run for minutes without a way to stop it (an env step of ``dt`` far beyond the chain's time
+#: scale is a mistake).
+MAX_SUBSTEPS = 10**6
+
 Array = npt.NDArray[np.float64]
 
 
@@ -94,6 +99,9 @@ def stepping(dt: object, substeps: object, method: object, n: int, upright: bool
         sub = max(1, math.ceil(dt_ / default_step(n, upright) * (1 - 1e-12)))
     else:
         sub = count(substeps, "substeps")
+    if sub > MAX_SUBSTEPS:
+        raise InputError(f"an env step of dt = {dt_:g} s would take {sub:.3g} integrator steps, more than "
+                         f"{MAX_SUBSTEPS:.0e}; use a smaller dt or fewer substeps")
     return dt_, sub, method
 
 

@@ -143,6 +143,8 @@ class PendulumVectorEnv(VectorEnv[Any, Any, Any]):
                  autoreset_mode: Union[str, AutoresetMode] = AutoresetMode.NEXT_STEP) -> None:
         self.task = task
         self.num_envs = count(num_envs, "num_envs")
+        # First: the core refuses a batch that would not fit before anything is allocated.
+        self._engine = Engine(task.chain, self.num_envs, task.dt, task.substeps, task.method)
         self.max_episode_steps = None if max_episode_steps is None else count(max_episode_steps, "max_episode_steps")
         try:
             mode = AutoresetMode(autoreset_mode)
@@ -158,7 +160,6 @@ class PendulumVectorEnv(VectorEnv[Any, Any, Any]):
         self.single_observation_space = task.single_observation_space
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
-        self._engine = Engine(task.chain, self.num_envs, task.dt, task.substeps, task.method)
         self._rngs: List[np.random.Generator] = [seeding.np_random(None)[0] for _ in range(self.num_envs)]
         self._states: Optional[Array] = None
         self._steps = np.zeros(self.num_envs, dtype=np.int64)

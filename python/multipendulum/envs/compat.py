@@ -210,6 +210,7 @@ class AcrobotCompatVectorEnv(_Acrobot, VectorEnv[Any, Any, Any]):
             raise InputError(f"render_mode must be rgb_array or None for the vector environment, got {render_mode!r}")
         self.render_mode = render_mode
         self._setup(self.num_envs)
+        self._chain_engine()  # first: the core refuses a batch that would not fit before anything is allocated
         self.single_observation_space = self._single_obs_space
         self.single_action_space = spaces.Discrete(3)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)

@@ -231,6 +231,9 @@ impl Steppers {
         if settings.drive.pivot.is_some() || settings.drive.force.is_some() {
             return Err(Error::input("steppers hold their own cart force and take no pivot motion"));
         }
+        // Refused before anything is allocated: a copy holds its chain, its state and the
+        // integrator's stages (a generous kilobyte plus some hundreds of bytes per link).
+        crate::memory::check(count as f64 * (1024.0 + 512.0 * chain.n() as f64), &format!("{count} copies of the chain"), "use fewer copies")?;
         let lanes = if bank::fits(chain, settings) { bank::requested()? } else { None };
         let mut settings = settings.clone();
         if chain.cart().is_some() {
