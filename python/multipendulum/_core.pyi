@@ -11,7 +11,7 @@ _F64 = npt.NDArray[np.float64]
 _Array = npt.ArrayLike
 
 __all__ = ["__version__", "InputError", "IntegrationError", "Torque", "Chain", "simulate", "checkpoint_time", "Event",
-           "lyapunov", "first_flips", "flip_energy_threshold", "METHODS", "METHOD_INFO", "DEFAULTS", "LIMITS", "FORMS",
+           "lyapunov", "first_flips", "flip_energy_threshold", "METHODS", "METHOD_INFO", "DEFAULTS", "LIMITS", "FORMS", "SENSITIVITIES",
            "ALGORITHMS", "check_memory", "Axis", "CartForce", "axis_eval", "Steppers", "indicator", "indicators", "INDICATORS"]
 
 __version__: str
@@ -20,6 +20,7 @@ METHOD_INFO: Dict[str, Dict[str, Any]]
 DEFAULTS: Dict[str, Any]
 LIMITS: Dict[str, float]
 FORMS: List[str]
+SENSITIVITIES: List[str]
 ALGORITHMS: Dict[str, Optional[int]]
 INDICATORS: List[str]
 
@@ -133,7 +134,7 @@ def simulate(chain: Chain, theta0: _F64, omega0: _F64, t_end: float, *, method: 
              progress: Optional[Callable[[float], Any]] = None, events: Optional[Sequence[Event]] = None,
              checkpoint: Optional[Tuple[int, Optional[float], Callable[[bytes, float, int], Any]]] = None,
              resume: Optional[bytes] = None, pivot: _Pivot = None, cart_force: Optional[CartForce] = None,
-             cart0: Tuple[float, float] = ...) -> Dict[str, Any]: ...
+             cart0: Tuple[float, float] = ..., sensitivities: Optional[List[str]] = None) -> Dict[str, Any]: ...
 def checkpoint_time(state: bytes) -> Tuple[float, int]: ...
 
 @final

@@ -31,6 +31,8 @@ METHODS = tuple(_core.METHODS)
 METHOD_INFO = {name: dict(info) for name, info in _core.METHOD_INFO.items()}
 #: The core's defaults of a run (``rtol``, ``atol``, ``max_steps``, ``method``).
 DEFAULTS = dict(_core.DEFAULTS)
+#: What :func:`simulate`'s ``sensitivities`` can be taken with respect to, as the core names them.
+SENSITIVITIES = tuple(_core.SENSITIVITIES)
 
 
 @dataclass(frozen=True)
@@ -230,6 +232,12 @@ class Solution:
             self.pivot[..., 0] = self.cart_x
         self._energy_error: npt.NDArray[np.float64] = data["energy_error"].reshape(shape)
         self._positions: Optional[npt.NDArray[np.float64]] = None
+        #: The forward sensitivities by input name, each (..., T, S, k) (:func:`simulate`'s
+        #: ``sensitivities``); empty when none were asked for.
+        self.sensitivities: Dict[str, npt.NDArray[np.float64]] = {}
+        #: The Gauss methods' derivatives of ``(theta, p)`` (and ``(x, p_x)``), laid out as
+        #: :attr:`sensitivities`; None for the other methods.
+        self.canonical_sensitivities: Optional[Dict[str, npt.NDArray[np.float64]]] = None
 
     @property
     def positions(self) -> npt.NDArray[np.float64]:
@@ -321,7 +329,8 @@ def simulate(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: 
              events: Optional[Sequence[Union[Flip, Crossing, Event]]] = None, checkpoint: Optional[PathLike] = None,
              checkpoint_every: Optional[Integer] = None, checkpoint_seconds: Optional[float] = None,
              checkpoint_info: Optional[Dict[str, Any]] = None, pivot: Optional[Pivot] = None,
-             cart_x0: float = 0.0, cart_v0: float = 0.0, cart_force: Optional[ForceLike] = None) -> Solution:
+             cart_x0: float = 0.0, cart_v0: float = 0.0, cart_force: Optional[ForceLike] = None,
+             sensitivities: Optional[Sequence[str]] = None) -> Solution:
     """Integrate ``chain`` from ``(theta0, omega0)`` at t = 0 to ``t_end`` (seconds).
 
     Methods (:data:`METHODS`): ``"rk4"`` classical Runge–Kutta, order 4, fixed ``dt``;
@@ -364,6 +373,21 @@ def simulate(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: 
     complete archive. ``checkpoint_info``: a JSON-ready dict kept in it (the CLI keeps the
     scenario). Not with a batch, a Python torque function or events (refused). See
     :mod:`multipendulum.checkpoint`.
+
+    ``sensitivities``: names of :data:`SENSITIVITIES` (any subset: ``"theta0"``, ``"omega0"``,
+    ``"lengths"``, ``"masses"``, ``"com"``, ``"inertia"``, ``"g"``, ``"damping"``,
+    ``"friction"``): ``sol.sensitivities[name]``, shape (..., T, S, k), is the derivative of the
+    state ``(theta, omega)`` (S = 2N; with a cart ``(theta, omega, x, v)``, S = 2N + 2) at each
+    output time with respect to the k entries of that input (k = N; 1 for ``g``), each of the
+    chain's parameters moved alone (a point-mass chain's ``com`` does not follow its
+    ``lengths``: see :func:`fit`). They come from the variational equations integrated by the
+    run's own method, O(N) per direction: for rk4 and the Gauss methods they are the exact
+    derivatives of the computed trajectory; dop853 controls the error of the state only (its
+    steps do not depend on the sensitivities). The Gauss methods also give
+    ``sol.canonical_sensitivities``, the derivatives of ``(theta, p)``: with respect to the
+    initial ``(theta, p)`` that map is symplectic. Torques must depend on time only (an array,
+    :class:`Sinusoid`, :class:`Table` or ``f(t)``); not with checkpoints. See
+    :doc:`sensitivities`.
 
     Raises :class:`InputError` for bad input, :class:`IntegrationError` (with ``.t``) when the
     run cannot continue; a torque function's own exception passes through.
@@ -443,10 +467,38 @@ def simulate(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: 
         writer = Writer(checkpoint, chain, th0, om0, t_eval, run, every_steps, every_seconds, info=checkpoint_info)
     elif checkpoint_every is not None or checkpoint_seconds is not None:
         raise InputError("checkpoint_every / checkpoint_seconds need checkpoint=FILE")
-    sol = _run(chain, th0, om0, run, t_eval, progress, event_specs, writer, batch_shape=batch_shape)
+    names = _sensitivity_names(sensitivities)
+    if names and writer is not None:
+        raise InputError("checkpoints cannot be combined with sensitivities (resume the run without them)")
+    sol = _run(chain, th0, om0, run, t_eval, progress, event_specs, writer, batch_shape=batch_shape,
+               sensitivities=names)
     sol._torque = joint_torque if joint else torque
     sol._pivot, sol._cart_force = pivot, cart_force
     return sol
+
+
+def _sensitivity_names(sensitivities: Optional[Sequence[str]]) -> List[str]:
+    """The names of ``sensitivities`` as a list (the core checks each one)."""
+    if sensitivities is None:
+        return []
+    if isinstance(sensitivities, str):
+        sensitivities = (sensitivities,)
+    if not isinstance(sensitivities, (list, tuple)) or not all(isinstance(s, str) for s in sensitivities):
+        raise InputError(f"sensitivities must be a list of names from {', '.join(SENSITIVITIES)}, "
+                         f"got {sensitivities!r}")
+    return list(sensitivities)
+
+
+def _split_sensitivities(flat: npt.NDArray[np.float64], names: Sequence[str], n: int, states: int,
+                         shape: Tuple[int, ...]) -> Dict[str, npt.NDArray[np.float64]]:
+    """The core's (..., T, S, K) derivatives split by input, in the order asked."""
+    counts = [1 if name == "g" else n for name in names]
+    whole = flat.reshape(shape + (states, sum(counts)))
+    out, start = {}, 0
+    for name, k in zip(names, counts):
+        out[name] = whole[..., start:start + k]
+        start += k
+    return out
 
 
 def _refuse_nan(data: Dict[str, Any]) -> None:
@@ -468,7 +520,8 @@ def _refuse_nan(data: Dict[str, Any]) -> None:
 def _run(chain: Chain, th0: npt.NDArray[Any], om0: npt.NDArray[Any], run: Dict[str, Any],
          t_eval: Optional[npt.NDArray[Any]], progress: Progress,
          event_specs: Sequence[_core.Event] = (), writer: Optional[Writer] = None, resume: Optional[bytes] = None,
-         wall_before: float = 0.0, batch_shape: Tuple[int, ...] = ()) -> Solution:
+         wall_before: float = 0.0, batch_shape: Tuple[int, ...] = (),
+         sensitivities: Sequence[str] = ()) -> Solution:
     """Call the core with checked arguments (``run``: as stored in a checkpoint archive)."""
     spec = run["torque"]
     spec = None if spec is None else tuple(spec)
@@ -482,12 +535,18 @@ def _run(chain: Chain, th0: npt.NDArray[Any], om0: npt.NDArray[Any], run: Dict[s
                               torque=core_torque(spec, run["joint"]), progress=report, events=list(event_specs),
                               checkpoint=ckpt, resume=resume, pivot=core_pivot(run.get("pivot")),
                               cart_force=core_force(run.get("cart_force")),
-                              cart0=tuple(run.get("cart0", (0.0, 0.0))))
+                              cart0=tuple(run.get("cart0", (0.0, 0.0))),
+                              sensitivities=list(sensitivities) or None)
     wall = wall_before + time.perf_counter() - start
     _refuse_nan(data)
     stats = Stats._from(data["stats"], bool(batch_shape), wall)
     sol = Solution(chain, run["method"], data["form"], data, batch_shape, stats, len(event_specs))
     sol._joint, sol._rtol = run["joint"], run["rtol"]
+    if sensitivities:
+        shape, states = batch_shape + (sol.t.size,), 2 * chain.n + (2 if chain.cart is not None else 0)
+        sol.sensitivities = _split_sensitivities(data["sensitivities"], sensitivities, chain.n, states, shape)
+        if data["canonical"].size:
+            sol.canonical_sensitivities = _split_sensitivities(data["canonical"], sensitivities, chain.n, states, shape)
     sol._initial = (np.asarray(th0, dtype=np.float64), np.asarray(om0, dtype=np.float64))
     if spec is not None and spec[0] != "callable":
         sol._torque = torque_object(spec, chain.n)

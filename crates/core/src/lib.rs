@@ -27,6 +27,7 @@ pub mod watch;
 pub use dynamics::base::{Axis, AxisFn, Drive, Force, ForceFn, Motion, Pivot};
 pub use dynamics::general::Load;
 pub use dynamics::reference;
+pub use dynamics::sensitivity::Input;
 pub use dynamics::system::{ChainSystem, Form, OdeSystem};
 pub use dynamics::torque::{Builtin, Interp, Joint, TorqueSource};
 pub use dynamics::{Singular, Workspace};

@@ -37,6 +37,7 @@ pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     }
     m.add("LIMITS", limits)?;
     m.add("FORMS", facts::forms())?;
+    m.add("SENSITIVITIES", core::Input::NAMES.to_vec())?;
     let algorithms = PyDict::new(py);
     for (name, max_links) in facts::algorithms() {
         algorithms.set_item(name, max_links)?;

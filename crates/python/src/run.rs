@@ -63,6 +63,10 @@ fn trajectories_out<'py>(py: Python<'py>, trs: Trajectories) -> PyResult<Bound<'
     d.set_item("cart_x", vec_out(py, take(&mut trs, |t| std::mem::take(&mut t.cart_x))))?;
     d.set_item("cart_v", vec_out(py, take(&mut trs, |t| std::mem::take(&mut t.cart_v))))?;
     d.set_item("pivot", vec_out(py, take(&mut trs, |t| std::mem::take(&mut t.pivot))))?;
+    // Sensitivities: (T, S, K) per trajectory, flat (empty without them).
+    d.set_item("directions", trs[0].directions)?;
+    d.set_item("sensitivities", vec_out(py, take(&mut trs, |t| std::mem::take(&mut t.sensitivities))))?;
+    d.set_item("canonical", vec_out(py, take(&mut trs, |t| std::mem::take(&mut t.canonical))))?;
     let events = pyo3::types::PyList::empty(py);
     let stopped = pyo3::types::PyList::empty(py);
     for tr in trs.iter_mut() {
@@ -170,7 +174,7 @@ fn event_spec(py: Python<'_>, spec: &PyEventSpec, errors: &EventErrors) -> core:
 /// save)`, `save(state: bytes, t, steps)` called with the run's serialised state; `resume`: such
 /// bytes.
 #[pyfunction]
-#[pyo3(signature = (chain, theta0, omega0, t_end, *, method, rtol, atol, max_steps, form=None, dt=None, adaptive=true, t_eval=None, torque=None, progress=None, events=None, checkpoint=None, resume=None, pivot=None, cart_force=None, cart0=(0.0, 0.0)))]
+#[pyo3(signature = (chain, theta0, omega0, t_end, *, method, rtol, atol, max_steps, form=None, dt=None, adaptive=true, t_eval=None, torque=None, progress=None, events=None, checkpoint=None, resume=None, pivot=None, cart_force=None, cart0=(0.0, 0.0), sensitivities=None))]
 #[allow(clippy::too_many_arguments)]
 fn simulate<'py>(
     py: Python<'py>,
@@ -194,6 +198,7 @@ fn simulate<'py>(
     pivot: Option<(PyRef<'py, PyAxis>, PyRef<'py, PyAxis>)>,
     cart_force: Option<PyRef<'py, PyCartForce>>,
     cart0: (f64, f64),
+    sensitivities: Option<Vec<String>>,
 ) -> PyResult<Bound<'py, pyo3::types::PyDict>> {
     let c = &chain.inner;
     let n = c.n();
@@ -211,6 +216,7 @@ fn simulate<'py>(
         events: events.unwrap_or_default().iter().map(|e| event_spec(py, e, &event_errors)).collect(),
         drive: core::Drive { pivot: crate::base::pivot(py, pivot, &event_errors)?, force: crate::base::force(py, cart_force, &event_errors)? },
         cart0: [cart0.0, cart0.1],
+        sensitivities: sensitivities.unwrap_or_default().iter().map(|s| core::Input::parse(s)).collect::<core::Result<_>>().map_err(err)?,
     };
     let base_callbacks = settings.drive.pivot.as_ref().is_some_and(|p| matches!(p.x, core::Axis::Function(_)) || matches!(p.y, core::Axis::Function(_)))
         || settings.drive.force.as_ref().is_some_and(core::Force::is_feedback);

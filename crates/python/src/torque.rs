@@ -17,6 +17,9 @@ pub(crate) struct Callback<'py> {
 }
 
 impl TorqueSource for Callback<'_> {
+    fn uses_state(&self) -> bool {
+        self.with_state
+    }
     fn eval(&mut self, t: f64, theta: &[f64], omega: &[f64], out: &mut [f64]) -> core::Result<()> {
         let py = self.f.py();
         let result = if self.with_state {
@@ -162,6 +165,13 @@ impl TorqueSource for AnyTorque<'_> {
             AnyTorque::Builtin(b) => b.active(),
             AnyTorque::JointBuiltin(b) => b.active(),
             _ => true,
+        }
+    }
+    fn uses_state(&self) -> bool {
+        match self {
+            AnyTorque::Call(c) => c.uses_state(),
+            AnyTorque::JointCall(c) => c.uses_state(),
+            _ => false,
         }
     }
     fn eval(&mut self, t: f64, theta: &[f64], omega: &[f64], out: &mut [f64]) -> core::Result<()> {

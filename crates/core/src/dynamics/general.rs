@@ -370,9 +370,29 @@ impl Chain {
         &self,
         theta: &[f64],
         omega: &[f64],
+        rates: (&[f64], f64),
+        load: &Load,
+        direction: (&[f64], &[f64], f64),
+        out: &mut [f64],
+        scratch: &mut [f64],
+        ws: &mut Workspace,
+    ) -> Result<f64, Singular> {
+        self.tangent_forced(theta, omega, rates, load, direction, None, out, scratch, ws)
+    }
+
+    /// [`Chain::tangent_general`] with a forcing: `forcing = (b, b_x)` is added to the
+    /// right-hand side of the mass-matrix solve (the angles' rows and the cart's), so the result
+    /// is `d q_ddot + M^-1 (b, b_x)`: a parameter's sensitivity direction
+    /// ([`super::sensitivity`]) in the same solve.
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn tangent_forced(
+        &self,
+        theta: &[f64],
+        omega: &[f64],
         (accel, x_ddot): (&[f64], f64),
         load: &Load,
         (d_theta, d_omega, d_v): (&[f64], &[f64], f64),
+        forcing: Option<(&[f64], f64)>,
         out: &mut [f64],
         scratch: &mut [f64],
         ws: &mut Workspace,
@@ -419,8 +439,14 @@ impl Chain {
             self.add_loss_tangent(&omega[..n], &d_omega[..n], out);
         }
         let mut row = 0.0;
+        if let Some((b, b_x)) = forcing {
+            for a in 0..n {
+                out[a] += b[a];
+            }
+            row = b_x;
+        }
         if let Some(cart) = self.cart {
-            row = -cart.damping * d_v;
+            row += -cart.damping * d_v;
             for b in 0..n {
                 let (s, c) = (ws.sin[b], ws.cos[b]);
                 row += h[b] * (c * d_theta[b] * omega[b] * omega[b] + 2.0 * s * omega[b] * d_omega[b] + s * d_theta[b] * accel[b]);
@@ -439,9 +465,29 @@ impl Chain {
     pub fn hamilton_tangent(
         &self,
         theta: &[f64],
+        rates: (&[f64], f64),
+        gravity: [f64; 2],
+        direction: (&[f64], &[f64], f64),
+        d_omega: &mut [f64],
+        d_pdot: &mut [f64],
+        scratch: &mut [f64],
+        ws: &mut Workspace,
+    ) -> Result<(f64, f64), Singular> {
+        self.hamilton_tangent_forced(theta, rates, gravity, direction, None, d_omega, d_pdot, scratch, ws)
+    }
+
+    /// [`Chain::hamilton_tangent`] with a parameter's explicit terms `forcing = (dp, dp_x,
+    /// dpdot)`: `dp`, `dp_x` (the momenta's derivative at fixed rates) are subtracted from the
+    /// momenta's direction before the solve for `d omega`, and `dpdot` (`p_dot`'s derivative at
+    /// fixed angles and rates) is added to `d p_dot` ([`super::sensitivity`]).
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn hamilton_tangent_forced(
+        &self,
+        theta: &[f64],
         (omega, v): (&[f64], f64),
         gravity: [f64; 2],
         (d_theta, d_p, d_px): (&[f64], &[f64], f64),
+        forcing: Option<(&[f64], f64, &[f64])>,
         d_omega: &mut [f64],
         d_pdot: &mut [f64],
         scratch: &mut [f64],
@@ -470,6 +516,12 @@ impl Chain {
             d_omega[a] = d_p[a] + d_theta[a] * s_w[a] - s_tw[a] + h[a] * s * d_theta[a] * v;
             row += h[a] * s * d_theta[a] * omega[a];
         }
+        if let Some((dp, dp_x, _)) = forcing {
+            for a in 0..n {
+                d_omega[a] -= dp[a];
+            }
+            row -= dp_x;
+        }
         let art = self.eliminate(ws, d_omega, |_, _, _| 0.0)?;
         let dv = if self.cart.is_some() { (row - art.wx) / self.cart_inertia(art)? } else { 0.0 };
         self.substitute_from(ws, d_omega, dv, |_, _, _, _| {});
@@ -484,6 +536,11 @@ impl Chain {
         }
         if self.lossy_joints() {
             self.add_loss_tangent(&omega[..n], d_omega, d_pdot);
+        }
+        if let Some((_, _, dpdot)) = forcing {
+            for a in 0..n {
+                d_pdot[a] += dpdot[a];
+            }
         }
         let d_pxdot = self.cart.map_or(0.0, |cart| -cart.damping * dv);
         Ok((dv, d_pxdot))

@@ -15,6 +15,7 @@ pub mod general;
 pub mod lanes;
 pub mod reference;
 pub mod rows;
+pub mod sensitivity;
 pub mod system;
 pub mod torque;
 

@@ -218,6 +218,11 @@ impl<C: Borrow<Chain>, T: TorqueSource> ChainSystem<C, T> {
         self.chain.borrow()
     }
 
+    /// Whether the torque is a feedback of the state.
+    pub fn torque_uses_state(&self) -> bool {
+        self.torque.uses_state()
+    }
+
     pub fn drive(&self) -> &Drive {
         &self.drive
     }

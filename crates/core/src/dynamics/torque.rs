@@ -9,6 +9,11 @@ pub trait TorqueSource {
     fn active(&self) -> bool {
         true
     }
+    /// Whether the torques depend on the state (feedback), not on time alone: the variational
+    /// equations take torques as functions of time, so such a run has no sensitivities.
+    fn uses_state(&self) -> bool {
+        false
+    }
     /// Write the torques at time `t` in state `(theta, omega)` into `out`.
     fn eval(&mut self, t: f64, theta: &[f64], omega: &[f64], out: &mut [f64]) -> Result<()>;
 }
@@ -146,6 +151,9 @@ impl<T: TorqueSource> TorqueSource for Joint<T> {
     fn active(&self) -> bool {
         self.0.active()
     }
+    fn uses_state(&self) -> bool {
+        self.0.uses_state()
+    }
     fn eval(&mut self, t: f64, theta: &[f64], omega: &[f64], out: &mut [f64]) -> Result<()> {
         self.0.eval(t, theta, omega, out)?;
         for i in 0..out.len().saturating_sub(1) {
@@ -158,6 +166,9 @@ impl<T: TorqueSource> TorqueSource for Joint<T> {
 impl<T: TorqueSource + ?Sized> TorqueSource for &mut T {
     fn active(&self) -> bool {
         (**self).active()
+    }
+    fn uses_state(&self) -> bool {
+        (**self).uses_state()
     }
     fn eval(&mut self, t: f64, theta: &[f64], omega: &[f64], out: &mut [f64]) -> Result<()> {
         (**self).eval(t, theta, omega, out)

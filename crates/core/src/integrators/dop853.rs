@@ -18,6 +18,9 @@ const STAGES: usize = 12;
 #[derive(Debug, Clone)]
 pub struct Dop853 {
     dim: usize,
+    /// The leading components the error estimate and the first step see (all by default; a run
+    /// with sensitivities controls its state only).
+    controlled: usize,
     /// 16 stage derivatives: 12 of the step, `f(t+h, y_new)` at 12, 3 for dense output.
     k: Vec<f64>,
     tmp: Vec<f64>,
@@ -42,6 +45,7 @@ impl Dop853 {
     pub fn new(dim: usize, rtol: f64, atol: f64) -> Self {
         Dop853 {
             dim,
+            controlled: dim,
             k: vec![0.0; 16 * dim],
             tmp: vec![0.0; dim],
             dense: vec![0.0; 7 * dim],
@@ -50,6 +54,12 @@ impl Dop853 {
             fsal_pending: false,
             dense_ready: false,
         }
+    }
+
+    /// Control the error of the first `m` components only (the others ride along).
+    pub fn controlling(mut self, m: usize) -> Self {
+        self.controlled = m.min(self.dim);
+        self
     }
 
     /// The slope at the current state that the next step starts from.
@@ -72,9 +82,9 @@ impl Dop853 {
 
     /// Hairer's initial step size guess (Solving ODEs I, II.4), after `start`.
     pub fn first_step<S: OdeSystem>(&mut self, sys: &mut S, t: f64, y: &[f64], span: f64) -> Result<f64> {
-        let d = self.dim;
+        let (d, e) = (self.dim, self.controlled);
         let scale = |m: usize| self.atol + y[m].abs() * self.rtol;
-        let rms = |v: &dyn Fn(usize) -> f64| ((0..d).map(|m| v(m).powi(2)).sum::<f64>() / d as f64).sqrt();
+        let rms = |v: &dyn Fn(usize) -> f64| ((0..e).map(|m| v(m).powi(2)).sum::<f64>() / e as f64).sqrt();
         let f0 = self.k[..d].to_vec();
         let d0 = rms(&|m| y[m] / scale(m));
         let d1 = rms(&|m| f0[m] / scale(m));
@@ -138,7 +148,8 @@ impl Dop853 {
         }
         // Combined error norm of DOP853 (scipy's `_estimate_error_norm`).
         let (mut e5, mut e3) = (0.0, 0.0);
-        for m in 0..d {
+        let e = self.controlled;
+        for m in 0..e {
             let scale = self.atol + y[m].abs().max(y_new[m].abs()) * self.rtol;
             let (mut a5, mut a3) = (0.0, 0.0);
             for j in 0..=STAGES {
@@ -149,7 +160,7 @@ impl Dop853 {
             e5 += (a5 / scale).powi(2);
             e3 += (a3 / scale).powi(2);
         }
-        Ok(if e5 == 0.0 && e3 == 0.0 { 0.0 } else { h.abs() * e5 / ((e5 + 0.01 * e3) * d as f64).sqrt() })
+        Ok(if e5 == 0.0 && e3 == 0.0 { 0.0 } else { h.abs() * e5 / ((e5 + 0.01 * e3) * e as f64).sqrt() })
     }
 
     /// The 7th-order interpolant between `(t, y)` and `(t + h, y_new)` of the last accepted

@@ -6,6 +6,7 @@ pub mod driver;
 pub mod energy;
 pub mod events;
 pub mod live;
+pub mod sensitivity;
 pub mod simulate;
 
 pub use driver::{Config, Run, State};

@@ -7,7 +7,9 @@ use serde::{Deserialize, Serialize};
 use super::driver::{fixed_steps, Config, Run, State};
 use super::energy::EnergyBalance;
 use super::events::{EventSpec, Hit, Tracker};
+use super::sensitivity::Sensitive;
 use crate::dynamics::base::Drive;
+use crate::dynamics::sensitivity::Input;
 use crate::dynamics::system::{check_finite_state, ChainSystem, Form, Layout, OdeSystem};
 use crate::dynamics::torque::TorqueSource;
 use crate::dynamics::Workspace;
@@ -39,6 +41,8 @@ pub struct Settings {
     pub drive: Drive,
     /// The cart's initial position and velocity (every trajectory of a batch), with a cart.
     pub cart0: [f64; 2],
+    /// The inputs the run's forward sensitivities are taken with respect to (none: a plain run).
+    pub sensitivities: Vec<Input>,
 }
 
 /// The defaults of a run, stated once (Python, the CLI, scenario files and the viewer read them).
@@ -65,6 +69,7 @@ impl Default for Settings {
             events: Vec::new(),
             drive: Drive::none(),
             cart0: [0.0, 0.0],
+            sensitivities: Vec::new(),
         }
     }
 }
@@ -110,6 +115,15 @@ pub struct Trajectory {
     pub events: Vec<(usize, f64, Vec<f64>, Vec<f64>, Vec<f64>)>,
     /// The time a terminal event stopped the run, if one did.
     pub stopped_at: Option<f64>,
+    /// The forward sensitivities: `(T, S, K)` row-major, the derivative of the state entry
+    /// `(theta, omega, (x, v))` (S of them) with respect to each of the K directions of
+    /// `Settings::sensitivities` (each input's entries in order). Empty without sensitivities.
+    pub sensitivities: Vec<f64>,
+    /// The Hamiltonian form's integrated columns, derivatives of `(theta, p, (x, p_x))`, in
+    /// the same layout (empty in the Lagrangian form).
+    pub canonical: Vec<f64>,
+    /// K, the number of sensitivity directions.
+    pub directions: usize,
 }
 
 impl Settings {
@@ -421,14 +435,65 @@ pub fn simulate_from<T: TorqueSource>(
         return Err(Error::input("checkpoints cannot be combined with events (the event tracker's state is not saved)"));
     }
     let sys = ChainSystem::new(chain, torque, form).with_drive(settings.drive.clone())?;
+    if settings.sensitivities.is_empty() {
+        return by_method(chain, start, t_end, settings, sys, monitor, checkpoints, rows);
+    }
+    if resume.is_some() || checkpoints.is_some() {
+        return Err(Error::input("checkpoints cannot be combined with sensitivities (resume the run without them)"));
+    }
+    let sys = Sensitive::new(chain, sys, &settings.sensitivities, &settings.drive)?;
+    crate::memory::check(
+        rows as f64 * sys.columns().len() as f64 * 8.0 * if form == Form::Hamiltonian { 2.0 } else { 1.0 },
+        &format!("storing {rows} output points of {} sensitivity directions", sys.columns().dirs.len()),
+        "ask for fewer output times (t_eval) or fewer sensitivities",
+    )?;
+    by_method(chain, start, t_end, settings, sys, monitor, checkpoints, rows)
+}
+
+/// What the run loop needs of its system besides the right-hand side: the chain's form and
+/// layout (its leading `layout.dim()` values are the chain's state), and what rides along.
+pub(crate) trait Traced: OdeSystem {
+    fn form(&self) -> Form;
+    fn layout(&self) -> Layout;
+    /// The whole initial state from the chain's own `y` at t = 0.
+    fn start(&mut self, y: Vec<f64>) -> Result<Vec<f64>> {
+        Ok(y)
+    }
+    /// Fill the sensitivities of `tr` from the recorded rows (of `self.dim()` values).
+    fn sensitivities(&mut self, _chain: &Chain, _rec: &[f64], _t: &[f64], _tr: &mut Trajectory) -> Result<()> {
+        Ok(())
+    }
+}
+
+impl<T: TorqueSource> Traced for ChainSystem<&Chain, T> {
+    fn form(&self) -> Form {
+        ChainSystem::form(self)
+    }
+    fn layout(&self) -> Layout {
+        ChainSystem::layout(self)
+    }
+}
+
+/// [`drive`] with the method's own integrator type: one monomorphised loop per method, not a
+/// dispatch per step. dop853 controls the error of the chain's state only.
+#[allow(clippy::too_many_arguments)]
+fn by_method<S: Traced>(
+    chain: &Chain,
+    start: Start,
+    t_end: f64,
+    settings: &Settings,
+    sys: S,
+    monitor: Monitor,
+    checkpoints: Option<&mut Checkpoints>,
+    rows: usize,
+) -> Result<Trajectory> {
     let (d, config) = (sys.dim(), settings.config(Some(t_end)));
-    // One monomorphised loop per method: the integrator's own type, not a dispatch per step.
     match settings.method {
         Method::Rk4 => drive(chain, start, t_end, settings, sys, Rk4::new(d), monitor, checkpoints, rows),
         Method::Gauss4 => drive(chain, start, t_end, settings, sys, Gauss::new(2, d), monitor, checkpoints, rows),
         Method::Gauss6 => drive(chain, start, t_end, settings, sys, Gauss::new(3, d), monitor, checkpoints, rows),
         Method::Dop853 => {
-            let integ = Dop853::new(d, config.rtol, config.atol);
+            let integ = Dop853::new(d, config.rtol, config.atol).controlling(sys.layout().dim());
             drive(chain, start, t_end, settings, sys, integ, monitor, checkpoints, rows)
         }
     }
@@ -436,12 +501,12 @@ pub fn simulate_from<T: TorqueSource>(
 
 /// The run loop of [`simulate_from`] for one integrator type.
 #[allow(clippy::too_many_arguments)]
-fn drive<T: TorqueSource, I: Integrator>(
+fn drive<S: Traced, I: Integrator>(
     chain: &Chain,
     start: Start,
     t_end: f64,
     settings: &Settings,
-    sys: ChainSystem<&Chain, T>,
+    mut sys: S,
     integ: I,
     monitor: Monitor,
     mut checkpoints: Option<&mut Checkpoints>,
@@ -455,7 +520,7 @@ fn drive<T: TorqueSource, I: Integrator>(
     let mut tracker = Tracker::new(&settings.events, chain, form);
     let (mut run, initial, mut rec) = match start {
         Start::Initial { theta0, omega0 } => {
-            let y = initial_state(chain, form, layout, theta0, omega0, settings.cart0);
+            let y = sys.start(initial_state(chain, form, layout, theta0, omega0, settings.cart0))?;
             tracker.start(0.0, &y)?;
             let rows = t_eval.map_or(if settings.method.adaptive() { 0 } else { rows }, <[f64]>::len);
             let rec = Recorder { t: Vec::with_capacity(rows), y: Vec::with_capacity(rows * d), ..Recorder::default() };
@@ -564,7 +629,17 @@ fn drive<T: TorqueSource, I: Integrator>(
     let (steps, rejected, evaluations, iterations) = run.counters();
     let stats = Stats { steps, rejected, evaluations, iterations, energy_error: 0.0 };
     let hits = std::mem::take(&mut tracker.hits);
-    finish(chain, form, layout, &settings.drive, &initial, rec, hits, stats)
+    let base = layout.dim();
+    if d == base {
+        return finish(chain, form, layout, &settings.drive, &initial, rec, hits, stats);
+    }
+    // The chain's state leads each row; the sensitivity columns follow it.
+    let rows_y = std::mem::take(&mut rec.y);
+    let y = rows_y.chunks(d).flat_map(|r| &r[..base]).copied().collect();
+    let mut tr = finish(chain, form, layout, &settings.drive, &initial[..base], Recorder { y, ..rec }, hits, stats)?;
+    let t = tr.t.clone();
+    run.system_mut().sensitivities(chain, &rows_y, &t, &mut tr)?;
+    Ok(tr)
 }
 
 /// What a state holds besides the angles and their rates (for messages).
@@ -686,6 +761,9 @@ fn finish(
         form,
         events: Vec::with_capacity(hits.len()),
         stopped_at: rec.stopped_at,
+        sensitivities: Vec::new(),
+        canonical: Vec::new(),
+        directions: 0,
     };
     let mut books = Books::new(chain, form, layout);
     let first = books.terms(chain, drive, 0.0, initial)?;

@@ -1,0 +1,733 @@
+//! Forward sensitivities: the derivative of a run's state with respect to its initial state and
+//! the chain's parameters, from the variational equations `dS/dt = J S + df/dP`, O(N) per
+//! direction.
+//!
+//! A parameter's forcing `df/dP` comes from the equations of motion written the Newton–Euler
+//! way, which are explicit in every parameter. With `n_a = (cos, sin)(theta_a)` and the field
+//! `X_i = B + sum_{b<i} l_b K_b + c_i K_i` at the links' centres of mass (`K_b` per link, `B` at
+//! the base), every term has the shape
+//!
+//! `Y_a = P_a . (c_a m_a X_a + l_a sum_{i>a} m_i X_i)`, and `Z = sum_i m_i X_i . x` for the cart,
+//!
+//! explicit in `l`, `m`, `c` and (through `B`) `g`:
+//! - the residual of the accelerations (`K = theta_ddot n - omega^2 (sin, -cos)`, `B = (x_ddot, 0)
+//!   - gravity`, `P = n`) plus `I theta_ddot - Q`: `M q_ddot = F` differentiated at fixed
+//!   accelerations gives the forcing of the Lagrangian form, `-d(residual)/dP`;
+//! - the momenta (`K = omega n`, `B = (v, 0)`, `P = n`) plus `I omega`;
+//! - `dL/dtheta_a`: the same field with `P_a = omega_a (-sin, cos)(theta_a)` (the kinetic
+//!   energy's), and `K = 0`, `B = gravity`, `P = n` (the potential's), plus the joints' losses:
+//!   with the momenta's derivative, the forcing of Hamilton's equations.
+//!
+//! The joint losses `u_j = -b_j w_j - f_j tanh(w_j / v_s)` enter as `Q_j = u_j - u_{j+1}`.
+use super::general::{saturating_tanh, Load, TANGENT_SCRATCH};
+use super::system::Form;
+use super::{Singular, Workspace};
+use crate::error::{Error, Result};
+use crate::model::Chain;
+
+/// What a run's sensitivities can be taken with respect to (each N entries, `g` one).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Input {
+    Theta0,
+    Omega0,
+    Lengths,
+    Masses,
+    Com,
+    Inertia,
+    G,
+    Damping,
+    Friction,
+}
+
+impl Input {
+    /// The inputs' names, in this order (Python and the docs read them).
+    pub const NAMES: [&'static str; 9] = ["theta0", "omega0", "lengths", "masses", "com", "inertia", "g", "damping", "friction"];
+    const ALL: [Input; 9] = [
+        Input::Theta0,
+        Input::Omega0,
+        Input::Lengths,
+        Input::Masses,
+        Input::Com,
+        Input::Inertia,
+        Input::G,
+        Input::Damping,
+        Input::Friction,
+    ];
+
+    pub fn parse(name: &str) -> Result<Self> {
+        match Self::NAMES.iter().position(|&s| s == name) {
+            Some(i) => Ok(Self::ALL[i]),
+            None => Err(Error::input(format!(
+                "unknown sensitivity {name:?}: the inputs are {}",
+                Self::NAMES.map(|s| format!("\"{s}\"")).join(", ")
+            ))),
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        Self::NAMES[Self::ALL.iter().position(|&i| i == self).unwrap()]
+    }
+
+    /// The number of entries (directions) of the input for `n` links.
+    pub fn len(self, n: usize) -> usize {
+        if self == Input::G {
+            1
+        } else {
+            n
+        }
+    }
+
+    /// The directions of this input, in entry order.
+    fn directions(self, n: usize) -> impl Iterator<Item = Direction> {
+        (0..self.len(n)).map(move |j| match self {
+            Input::Theta0 => Direction::Theta(j),
+            Input::Omega0 => Direction::Omega(j),
+            Input::Lengths => Direction::Param(Param::Length(j)),
+            Input::Masses => Direction::Param(Param::Mass(j)),
+            Input::Com => Direction::Param(Param::Com(j)),
+            Input::Inertia => Direction::Param(Param::Inertia(j)),
+            Input::G => Direction::Param(Param::Gravity),
+            Input::Damping => Direction::Param(Param::Damping(j)),
+            Input::Friction => Direction::Param(Param::Friction(j)),
+        })
+    }
+}
+
+/// One of the chain's parameters.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Param {
+    Length(usize),
+    Mass(usize),
+    Com(usize),
+    Inertia(usize),
+    Gravity,
+    Damping(usize),
+    Friction(usize),
+}
+
+/// One sensitivity direction: an initial angle or rate, or a parameter.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Direction {
+    Theta(usize),
+    Omega(usize),
+    Param(Param),
+}
+
+/// The directions of `inputs` (each once, in the given order) for `n` links.
+pub fn directions(inputs: &[Input], n: usize) -> Result<Vec<Direction>> {
+    for (i, a) in inputs.iter().enumerate() {
+        if inputs[..i].contains(a) {
+            return Err(Error::input(format!("sensitivity {:?} is given twice", a.name())));
+        }
+    }
+    Ok(inputs.iter().flat_map(|i| i.directions(n)).collect())
+}
+
+#[inline(always)]
+fn dot(a: [f64; 2], b: [f64; 2]) -> f64 {
+    a[0] * b[0] + a[1] * b[1]
+}
+
+/// The field `X_i` of one evaluation and its suffix sums (the module's notation).
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Field {
+    k: Vec<[f64; 2]>,
+    x: Vec<[f64; 2]>,
+    /// `sum_{i>=a} m_i X_i`, N + 1 entries.
+    phi: Vec<[f64; 2]>,
+    /// `d B / d g`.
+    dbase_g: [f64; 2],
+}
+
+impl Field {
+    pub fn new(n: usize) -> Self {
+        Field { k: vec![[0.0; 2]; n], x: vec![[0.0; 2]; n], phi: vec![[0.0; 2]; n + 1], dbase_g: [0.0; 2] }
+    }
+}
+
+/// Work buffers of the forcings for one chain size.
+#[derive(Debug, Clone, Default)]
+pub struct Scratch {
+    field: Field,
+    gravity: Field,
+    proj: Vec<[f64; 2]>,
+    kin: Vec<[f64; 2]>,
+    /// Suffix sums of the masses, `sum_{i>=a} m_i`, N + 1 entries.
+    below: Vec<f64>,
+    pub(crate) b: Vec<f64>,
+    pub(crate) dp: Vec<f64>,
+    pub(crate) dpdot: Vec<f64>,
+}
+
+impl Scratch {
+    pub fn new(chain: &Chain) -> Self {
+        let n = chain.n();
+        let mut below = vec![0.0; n + 1];
+        for i in (0..n).rev() {
+            below[i] = below[i + 1] + chain.masses[i];
+        }
+        Scratch {
+            field: Field::new(n),
+            gravity: Field::new(n),
+            proj: vec![[0.0; 2]; n],
+            kin: vec![[0.0; 2]; n],
+            below,
+            b: vec![0.0; n],
+            dp: vec![0.0; n],
+            dpdot: vec![0.0; n],
+        }
+    }
+}
+
+/// Rates of the state a forcing is taken at: the Lagrangian form's accelerations, or the
+/// Hamiltonian form's velocities.
+pub(crate) enum At<'a> {
+    Lagrangian { omega: &'a [f64], accel: &'a [f64], x_ddot: f64 },
+    Hamiltonian { omega: &'a [f64], v: f64 },
+}
+
+impl Chain {
+    /// `X_i` and its suffix sums for `K` (in `f.k`) and base `base`.
+    fn fill_field(&self, f: &mut Field, base: [f64; 2], dbase_g: [f64; 2]) {
+        let n = self.n();
+        let mut alpha = base;
+        for i in 0..n {
+            let (k, c, l) = (f.k[i], self.com[i], self.lengths[i]);
+            f.x[i] = [alpha[0] + c * k[0], alpha[1] + c * k[1]];
+            alpha = [alpha[0] + l * k[0], alpha[1] + l * k[1]];
+        }
+        f.phi[n] = [0.0; 2];
+        for i in (0..n).rev() {
+            let m = self.masses[i];
+            f.phi[i] = [f.phi[i + 1][0] + m * f.x[i][0], f.phi[i + 1][1] + m * f.x[i][1]];
+        }
+        f.dbase_g = dbase_g;
+    }
+
+    /// Add `d Y_a / d param` (projections `proj`) to `out`; returns `d Z / d param`. O(N).
+    fn field_derivative(&self, f: &Field, below: &[f64], proj: &[[f64; 2]], param: Param, out: &mut [f64]) -> f64 {
+        let n = self.n();
+        let (l, m, c, h) = (&self.lengths, &self.masses, &self.com, &self.h);
+        match param {
+            Param::Mass(j) => {
+                let xj = f.x[j];
+                for a in 0..j {
+                    out[a] += l[a] * dot(proj[a], xj);
+                }
+                out[j] += c[j] * dot(proj[j], xj);
+                xj[0]
+            }
+            Param::Com(j) => {
+                let (kj, xj) = (f.k[j], f.x[j]);
+                for a in 0..j {
+                    out[a] += l[a] * m[j] * dot(proj[a], kj);
+                }
+                out[j] += m[j] * (dot(proj[j], xj) + c[j] * dot(proj[j], kj));
+                m[j] * kj[0]
+            }
+            Param::Length(j) => {
+                let (kj, s) = (f.k[j], below[j + 1]);
+                for a in 0..j {
+                    out[a] += l[a] * s * dot(proj[a], kj);
+                }
+                out[j] += dot(proj[j], f.phi[j + 1]) + l[j] * s * dot(proj[j], kj);
+                for a in j + 1..n {
+                    out[a] += h[a] * dot(proj[a], kj);
+                }
+                s * kj[0]
+            }
+            Param::Gravity => {
+                for a in 0..n {
+                    out[a] += h[a] * dot(proj[a], f.dbase_g);
+                }
+                below[0] * f.dbase_g[0]
+            }
+            Param::Inertia(_) | Param::Damping(_) | Param::Friction(_) => 0.0,
+        }
+    }
+
+    /// `d Q / d param` of the joints' losses at rates `omega`, added to `out`.
+    fn loss_derivative(&self, omega: &[f64], param: Param, out: &mut [f64]) {
+        let (j, du) = match param {
+            Param::Damping(j) | Param::Friction(j) => {
+                let w = omega[j] - if j > 0 { omega[j - 1] } else { 0.0 };
+                let du = match param {
+                    Param::Damping(_) => -w,
+                    _ => -saturating_tanh(w * self.joints.inv_velocity),
+                };
+                (j, du)
+            }
+            _ => return,
+        };
+        out[j] += du;
+        if j > 0 {
+            out[j - 1] -= du;
+        }
+    }
+
+    /// Prepare the forcings of the directions at one state (the angles' trig in `ws`). O(N).
+    pub(crate) fn prepare_forcing(&self, at: &At, load: &Load, sc: &mut Scratch, ws: &Workspace) {
+        let n = self.n();
+        let (s, c) = (&ws.sin[..n], &ws.cos[..n]);
+        let [gx, gy] = load.gravity;
+        for a in 0..n {
+            sc.proj[a] = [c[a], s[a]];
+        }
+        match *at {
+            At::Lagrangian { omega, accel, x_ddot } => {
+                for a in 0..n {
+                    let (dd, w2) = (accel[a], omega[a] * omega[a]);
+                    sc.field.k[a] = [dd * c[a] - w2 * s[a], dd * s[a] + w2 * c[a]];
+                }
+                self.fill_field(&mut sc.field, [x_ddot - gx, -gy], [0.0, 1.0]);
+            }
+            At::Hamiltonian { omega, v } => {
+                for a in 0..n {
+                    sc.field.k[a] = [omega[a] * c[a], omega[a] * s[a]];
+                    sc.kin[a] = [-omega[a] * s[a], omega[a] * c[a]];
+                }
+                self.fill_field(&mut sc.field, [v, 0.0], [0.0, 0.0]);
+                sc.gravity.k.fill([0.0; 2]);
+                self.fill_field(&mut sc.gravity, [gx, gy], [0.0, -1.0]);
+            }
+        }
+    }
+
+    /// The Lagrangian form's forcing of `param` into `sc.b` (angles) and returned (the cart's):
+    /// `-d r / d param`, `r = M q_ddot - F` at fixed accelerations. After [`Chain::prepare_forcing`].
+    pub(crate) fn lagrangian_forcing(&self, omega: &[f64], accel: &[f64], param: Param, sc: &mut Scratch) -> f64 {
+        let Scratch { field, below, proj, b, .. } = sc;
+        b.fill(0.0);
+        let mut bx = self.field_derivative(field, below, proj, param, b);
+        if let Param::Inertia(j) = param {
+            b[j] += accel[j];
+        }
+        for v in b.iter_mut() {
+            *v = -*v;
+        }
+        bx = -bx;
+        self.loss_derivative(omega, param, b);
+        bx
+    }
+
+    /// The Hamiltonian form's forcing of `param`: the momenta's derivative at fixed rates into
+    /// `sc.dp` (the cart's returned first) and `p_dot`'s at fixed angles and rates into `sc.dpdot`
+    /// (the cart's `p_x_dot` has none). After [`Chain::prepare_forcing`].
+    pub(crate) fn hamiltonian_forcing(&self, omega: &[f64], param: Param, sc: &mut Scratch) -> f64 {
+        let Scratch { field, gravity, below, proj, kin, dp, dpdot, .. } = sc;
+        dp.fill(0.0);
+        dpdot.fill(0.0);
+        let dpx = if param == Param::Gravity { 0.0 } else { self.field_derivative(field, below, proj, param, dp) };
+        if let Param::Inertia(j) = param {
+            dp[j] += omega[j];
+        }
+        if param != Param::Gravity {
+            self.field_derivative(field, below, kin, param, dpdot);
+        }
+        self.field_derivative(gravity, below, proj, param, dpdot);
+        self.loss_derivative(omega, param, dpdot);
+        dpx
+    }
+
+    /// The momenta's derivative along `(d_theta, d_omega, d_v)` at rates `(omega, v)`: into
+    /// `dp`, the cart's returned (for the Hamiltonian form's initial sensitivities). The rates
+    /// enter linearly; the angles through `hamilton_tangent` (whose `d omega` at `d p = 0` is
+    /// `-M^-1 (dM) omega`).
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn momenta_tangent(
+        &self,
+        theta: &[f64],
+        (omega, v): (&[f64], f64),
+        (d_theta, d_omega, d_v): (&[f64], &[f64], f64),
+        dp: &mut [f64],
+        scratch: &mut [f64],
+        ws: &mut Workspace,
+    ) -> std::result::Result<f64, Singular> {
+        let n = self.n();
+        let zero = vec![0.0; n];
+        let (mut w, mut junk) = (vec![0.0; n], vec![0.0; n]);
+        let (dv0, _) = self.hamilton_tangent(theta, (omega, v), [0.0, 0.0], (d_theta, &zero, 0.0), &mut w, &mut junk, scratch, ws)?;
+        // (dM) omega = -M w; then M d_omega on top.
+        for a in 0..n {
+            w[a] = d_omega[a] - w[a];
+        }
+        Ok(self.momenta_general(theta, &w, d_v - dv0, dp, ws))
+    }
+}
+
+/// The sensitivity columns of a run: the directions, and the buffers their rates need.
+#[derive(Debug, Clone)]
+pub struct Columns {
+    pub dirs: Vec<Direction>,
+    form: Form,
+    /// Values per column: the mechanical state, `(theta, omega | p, (x, v | p_x))`.
+    pub mech: usize,
+    sc: Scratch,
+    ws: Workspace,
+    scratch: Vec<f64>,
+    zero: Vec<f64>,
+}
+
+impl Columns {
+    pub fn new(chain: &Chain, form: Form, dirs: Vec<Direction>) -> Self {
+        let n = chain.n();
+        let mech = 2 * n + if chain.cart.is_some() { 2 } else { 0 };
+        Columns {
+            dirs,
+            form,
+            mech,
+            sc: Scratch::new(chain),
+            ws: Workspace::new(n),
+            scratch: vec![0.0; TANGENT_SCRATCH * n],
+            zero: vec![0.0; n],
+        }
+    }
+
+    /// Values of all columns together.
+    pub fn len(&self) -> usize {
+        self.mech * self.dirs.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.dirs.is_empty()
+    }
+
+    /// The rates `out` of the columns `cols` at the mechanical state `y` with rates `dy` (the
+    /// system's right-hand side there): `dS/dt = J S + df/dP`, O(N) per column.
+    pub fn rates(&mut self, chain: &Chain, load: &Load, y: &[f64], dy: &[f64], cols: &[f64], out: &mut [f64]) -> std::result::Result<(), Singular> {
+        let n = chain.n();
+        let m = self.mech;
+        let cart = chain.cart.is_some();
+        let Columns { dirs, sc, ws, scratch, zero, .. } = self;
+        let theta = &y[..n];
+        chain.trig(theta, ws);
+        match self.form {
+            Form::Lagrangian => {
+                let (omega, accel) = (&y[n..2 * n], &dy[n..2 * n]);
+                let x_ddot = if cart { dy[2 * n + 1] } else { 0.0 };
+                chain.prepare_forcing(&At::Lagrangian { omega, accel, x_ddot }, load, sc, ws);
+                for (c, dir) in dirs.iter().enumerate() {
+                    let (col, o) = (&cols[c * m..(c + 1) * m], &mut out[c * m..(c + 1) * m]);
+                    let forcing = match *dir {
+                        Direction::Param(p) => Some(chain.lagrangian_forcing(omega, accel, p, sc)),
+                        _ => None,
+                    };
+                    let dv = if cart { col[2 * n + 1] } else { 0.0 };
+                    let (head, tail) = o.split_at_mut(n);
+                    head.copy_from_slice(&col[n..2 * n]);
+                    let dx = chain.tangent_forced(
+                        theta,
+                        omega,
+                        (accel, x_ddot),
+                        load,
+                        (&col[..n], &col[n..2 * n], dv),
+                        forcing.map(|bx| (&sc.b[..], bx)),
+                        &mut tail[..n],
+                        scratch,
+                        ws,
+                    )?;
+                    if cart {
+                        o[2 * n] = dv;
+                        o[2 * n + 1] = dx;
+                    }
+                }
+            }
+            Form::Hamiltonian => {
+                let omega = &dy[..n];
+                let v = if cart { dy[2 * n] } else { 0.0 };
+                chain.prepare_forcing(&At::Hamiltonian { omega, v }, load, sc, ws);
+                for (c, dir) in dirs.iter().enumerate() {
+                    let (col, o) = (&cols[c * m..(c + 1) * m], &mut out[c * m..(c + 1) * m]);
+                    let dpx = match *dir {
+                        Direction::Param(p) => Some(chain.hamiltonian_forcing(omega, p, sc)),
+                        _ => None,
+                    };
+                    let d_px = if cart { col[2 * n + 1] } else { 0.0 };
+                    let (head, tail) = o.split_at_mut(n);
+                    let (dv, dpxd) = chain.hamilton_tangent_forced(
+                        theta,
+                        (omega, v),
+                        load.gravity,
+                        (&col[..n], &col[n..2 * n], d_px),
+                        dpx.map(|dpx| (&sc.dp[..], dpx, &sc.dpdot[..])),
+                        head,
+                        &mut tail[..n],
+                        scratch,
+                        ws,
+                    )?;
+                    if cart {
+                        o[2 * n] = dv;
+                        o[2 * n + 1] = dpxd;
+                    }
+                }
+            }
+        }
+        let _ = zero;
+        Ok(())
+    }
+
+    /// The columns at the start, from `(theta0, omega0, v0)`: unit vectors in the Lagrangian
+    /// form; in the Hamiltonian one the momenta's derivatives along each direction (the run is
+    /// given rates, so `p0` moves with the angles and the parameters).
+    pub fn initial(&mut self, chain: &Chain, load: &Load, theta0: &[f64], omega0: &[f64], v0: f64, out: &mut [f64]) -> std::result::Result<(), Singular> {
+        let (n, m, cart) = (chain.n(), self.mech, chain.cart.is_some());
+        out.fill(0.0);
+        let Columns { dirs, sc, ws, scratch, zero, .. } = self;
+        if self.form == Form::Hamiltonian {
+            chain.trig(theta0, ws);
+            chain.prepare_forcing(&At::Hamiltonian { omega: omega0, v: v0 }, load, sc, ws);
+        }
+        let mut unit = vec![0.0; n];
+        for (c, dir) in dirs.iter().enumerate() {
+            let o = &mut out[c * m..(c + 1) * m];
+            match (self.form, *dir) {
+                (Form::Lagrangian, Direction::Theta(j)) => o[j] = 1.0,
+                (Form::Lagrangian, Direction::Omega(j)) => o[n + j] = 1.0,
+                (Form::Lagrangian, Direction::Param(_)) => {}
+                (Form::Hamiltonian, Direction::Param(p)) => {
+                    let dpx = chain.hamiltonian_forcing(omega0, p, sc);
+                    o[n..2 * n].copy_from_slice(&sc.dp);
+                    if cart {
+                        o[2 * n + 1] = dpx;
+                    }
+                }
+                (Form::Hamiltonian, Direction::Theta(j) | Direction::Omega(j)) => {
+                    unit.fill(0.0);
+                    unit[j] = 1.0;
+                    let (dth, dw) = if matches!(dir, Direction::Theta(_)) { (&unit[..], &zero[..]) } else { (&zero[..], &unit[..]) };
+                    if let Direction::Theta(_) = dir {
+                        o[j] = 1.0;
+                    }
+                    let (head, tail) = o.split_at_mut(2 * n);
+                    let dpx = chain.momenta_tangent(theta0, (omega0, v0), (dth, dw, 0.0), &mut head[n..], scratch, ws)?;
+                    if cart {
+                        tail[1] = dpx;
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The columns as derivatives of `(theta, omega, (x, v))` into `out` (row-major: state
+    /// entry, then column), from the integrated ones at the mechanical state `y` (in the
+    /// Hamiltonian form `(theta, p, (x, p_x))`, turned into rates through the tangent of
+    /// `omega = M^-1 p`).
+    pub fn output(&mut self, chain: &Chain, load: &Load, y: &[f64], cols: &[f64], out: &mut [f64]) -> std::result::Result<(), Singular> {
+        let (n, m, k, cart) = (chain.n(), self.mech, self.dirs.len(), chain.cart.is_some());
+        if self.form == Form::Lagrangian {
+            for c in 0..k {
+                for i in 0..m {
+                    out[i * k + c] = cols[c * m + i];
+                }
+            }
+            return Ok(());
+        }
+        let Columns { dirs, sc, ws, scratch, .. } = self;
+        let (theta, p) = (&y[..n], &y[n..2 * n]);
+        let px = if cart { y[2 * n + 1] } else { 0.0 };
+        let mut omega = vec![0.0; n];
+        let v = chain.velocities_general(theta, p, px, &mut omega, ws)?;
+        chain.prepare_forcing(&At::Hamiltonian { omega: &omega, v }, load, sc, ws);
+        let (mut d_omega, mut junk) = (vec![0.0; n], vec![0.0; n]);
+        for (c, dir) in dirs.iter().enumerate() {
+            let col = &cols[c * m..(c + 1) * m];
+            let dpx = match *dir {
+                Direction::Param(q) => Some(chain.hamiltonian_forcing(&omega, q, sc)),
+                _ => None,
+            };
+            let d_px = if cart { col[2 * n + 1] } else { 0.0 };
+            let (dv, _) = chain.hamilton_tangent_forced(
+                theta,
+                (&omega, v),
+                load.gravity,
+                (&col[..n], &col[n..2 * n], d_px),
+                dpx.map(|dpx| (&sc.dp[..], dpx, &sc.dpdot[..])),
+                &mut d_omega,
+                &mut junk,
+                scratch,
+                ws,
+            )?;
+            for i in 0..n {
+                out[i * k + c] = col[i];
+                out[(n + i) * k + c] = d_omega[i];
+            }
+            if cart {
+                out[2 * n * k + c] = col[2 * n];
+                out[(2 * n + 1) * k + c] = dv;
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::Cart;
+
+    fn chains() -> Vec<Chain> {
+        let base = Chain::new(&[1.0, 0.7, 1.3], &[1.2, 0.8, 0.5], Some(&[0.6, 0.3, 0.9]), Some(&[0.05, 0.02, 0.1]), 9.81).unwrap();
+        vec![
+            base.clone(),
+            base.clone().with_losses(&[0.3, 0.2, 0.1], &[0.05, 0.03, 0.02], 0.5).unwrap(),
+            base.clone().with_cart(Some(Cart::new(2.0, 0.4).unwrap())).unwrap(),
+        ]
+    }
+
+    /// The chain with `param` moved by `eps`, rebuilt through the public constructors.
+    fn moved(chain: &Chain, param: Param, eps: f64) -> Chain {
+        let (mut l, mut m, mut c, mut i) = (chain.lengths.clone(), chain.masses.clone(), chain.com.clone(), chain.inertia.clone());
+        let (mut g, mut b, mut f) = (chain.g, chain.joints.damping.clone(), chain.joints.friction.clone());
+        match param {
+            Param::Length(j) => l[j] += eps,
+            Param::Mass(j) => m[j] += eps,
+            Param::Com(j) => c[j] += eps,
+            Param::Inertia(j) => i[j] += eps,
+            Param::Gravity => g += eps,
+            Param::Damping(j) => b[j] += eps,
+            Param::Friction(j) => f[j] += eps,
+        }
+        let mut out = Chain::new(&l, &m, Some(&c), Some(&i), g).unwrap();
+        if chain.lossy_joints() {
+            out = out.with_losses(&b, &f, chain.joints.friction_velocity).unwrap();
+        }
+        if let Some(cart) = chain.cart {
+            out = out.with_cart(Some(cart)).unwrap();
+        }
+        out
+    }
+
+    /// Every parameter; the losses' only on the lossy chain (whose damping and friction are
+    /// positive, so central differences stay valid chains).
+    fn params(chain: &Chain) -> Vec<Param> {
+        let mut v = vec![Param::Gravity];
+        for j in 0..chain.n() {
+            v.extend([Param::Length(j), Param::Mass(j), Param::Com(j), Param::Inertia(j)]);
+            if chain.lossy_joints() {
+                v.extend([Param::Damping(j), Param::Friction(j)]);
+            }
+        }
+        v
+    }
+
+    #[test]
+    fn lagrangian_forcings_match_central_differences_of_the_accelerations() {
+        let (theta, omega, v) = ([0.4, -1.1, 2.0], [0.7, -0.3, 1.5], 0.35);
+        let tau = [0.2, -0.1, 0.05];
+        for chain in chains() {
+            let n = chain.n();
+            let load = Load::still(&chain);
+            let mut ws = Workspace::new(n);
+            let mut acc = vec![0.0; n];
+            let r = chain.accelerations_general(&theta, &omega, v, &tau, &load, &mut acc, &mut ws).unwrap();
+            let mut sc = Scratch::new(&chain);
+            chain.trig(&theta, &mut ws);
+            chain.prepare_forcing(&At::Lagrangian { omega: &omega, accel: &acc, x_ddot: r.cart }, &load, &mut sc, &ws);
+            for p in params(&chain) {
+                let bx = chain.lagrangian_forcing(&omega, &acc, p, &mut sc);
+                let b = sc.b.clone();
+                let (mut d, mut scratch) = (vec![0.0; n], vec![0.0; 8 * n]);
+                let zero = vec![0.0; n];
+                let dx = chain
+                    .tangent_forced(&theta, &omega, (&acc, r.cart), &load, (&zero, &zero, 0.0), Some((&b, bx)), &mut d, &mut scratch, &mut ws)
+                    .unwrap();
+                let eps = 1e-6;
+                let at = |e: f64| {
+                    let c = moved(&chain, p, e);
+                    let mut out = vec![0.0; n];
+                    let r = c.accelerations_general(&theta, &omega, v, &tau, &Load::still(&c), &mut out, &mut Workspace::new(n)).unwrap();
+                    (out, r.cart)
+                };
+                let ((hi, xh), (lo, xl)) = (at(eps), at(-eps));
+                for a in 0..n {
+                    let fd = (hi[a] - lo[a]) / (2.0 * eps);
+                    assert!((d[a] - fd).abs() < 1e-6 * (1.0 + fd.abs()), "{p:?} row {a}: {} vs {fd}", d[a]);
+                }
+                let fd = (xh - xl) / (2.0 * eps);
+                assert!((dx - fd).abs() < 1e-6 * (1.0 + fd.abs()), "{p:?} cart: {dx} vs {fd}");
+            }
+        }
+    }
+
+    #[test]
+    fn hamiltonian_forcings_match_central_differences_of_hamiltons_equations() {
+        let (theta, p, px) = ([0.4, -1.1, 2.0], [0.7, -0.3, 1.5], 0.8);
+        for chain in chains() {
+            let n = chain.n();
+            let load = Load::pivot(&chain, [0.0, 0.0]);
+            let eval = |c: &Chain| {
+                let (mut om, mut pd) = (vec![0.0; n], vec![0.0; n]);
+                let r = c
+                    .hamilton_general(&theta, &p, px, &mut om, &mut pd, [0.0, -c.g], &mut Workspace::new(n), |_, _, out| {
+                        out.fill(0.0);
+                        Ok::<f64, ()>(0.0)
+                    })
+                    .unwrap()
+                    .unwrap();
+                (om, pd, r.cart, r.cart_momentum_rate)
+            };
+            let (omega, _, v, _) = eval(&chain);
+            let mut ws = Workspace::new(n);
+            let mut sc = Scratch::new(&chain);
+            chain.trig(&theta, &mut ws);
+            chain.prepare_forcing(&At::Hamiltonian { omega: &omega, v }, &load, &mut sc, &ws);
+            for q in params(&chain) {
+                let dpx = chain.hamiltonian_forcing(&omega, q, &mut sc);
+                let (dp, dpdot) = (sc.dp.clone(), sc.dpdot.clone());
+                let zero = vec![0.0; n];
+                let (mut d_om, mut d_pd, mut scratch) = (vec![0.0; n], vec![0.0; n], vec![0.0; 8 * n]);
+                let (dv, _) = chain
+                    .hamilton_tangent_forced(&theta, (&omega, v), load.gravity, (&zero, &zero, 0.0), Some((&dp, dpx, &dpdot)), &mut d_om, &mut d_pd, &mut scratch, &mut ws)
+                    .unwrap();
+                let eps = 1e-6;
+                let (hi, lo) = (eval(&moved(&chain, q, eps)), eval(&moved(&chain, q, -eps)));
+                for a in 0..n {
+                    let fo = (hi.0[a] - lo.0[a]) / (2.0 * eps);
+                    let fp = (hi.1[a] - lo.1[a]) / (2.0 * eps);
+                    assert!((d_om[a] - fo).abs() < 1e-6 * (1.0 + fo.abs()), "{q:?} omega {a}: {} vs {fo}", d_om[a]);
+                    assert!((d_pd[a] - fp).abs() < 1e-6 * (1.0 + fp.abs()), "{q:?} p_dot {a}: {} vs {fp}", d_pd[a]);
+                }
+                let fv = (hi.2 - lo.2) / (2.0 * eps);
+                assert!((dv - fv).abs() < 1e-6 * (1.0 + fv.abs()), "{q:?} v: {dv} vs {fv}");
+            }
+        }
+    }
+
+    #[test]
+    fn momenta_tangents_match_central_differences() {
+        let (theta, omega) = ([0.4, -1.1, 2.0], [0.7, -0.3, 1.5]);
+        for chain in chains() {
+            let (n, cart) = (chain.n(), chain.cart.is_some());
+            let v = if cart { 0.35 } else { 0.0 };
+            let mut ws = Workspace::new(n);
+            for j in 0..2 * n + usize::from(cart) {
+                let (mut dth, mut dw, mut dv) = (vec![0.0; n], vec![0.0; n], 0.0);
+                match j {
+                    j if j < n => dth[j] = 1.0,
+                    j if j < 2 * n => dw[j - n] = 1.0,
+                    _ => dv = 1.0,
+                }
+                let mut dp = vec![0.0; n];
+                let dpx = chain.momenta_tangent(&theta, (&omega, v), (&dth, &dw, dv), &mut dp, &mut vec![0.0; 8 * n], &mut ws).unwrap();
+                let eps = 1e-6;
+                let at = |e: f64| {
+                    let th: Vec<f64> = (0..n).map(|a| theta[a] + e * dth[a]).collect();
+                    let om: Vec<f64> = (0..n).map(|a| omega[a] + e * dw[a]).collect();
+                    let mut p = vec![0.0; n];
+                    let px = chain.momenta_general(&th, &om, v + e * dv, &mut p, &mut Workspace::new(n));
+                    (p, px)
+                };
+                let ((hi, hx), (lo, lx)) = (at(eps), at(-eps));
+                for a in 0..n {
+                    let fd = (hi[a] - lo[a]) / (2.0 * eps);
+                    assert!((dp[a] - fd).abs() < 1e-7 * (1.0 + fd.abs()), "dir {j} p {a}: {} vs {fd}", dp[a]);
+                }
+                if chain.cart.is_some() {
+                    let fd = (hx - lx) / (2.0 * eps);
+                    assert!((dpx - fd).abs() < 1e-7 * (1.0 + fd.abs()), "dir {j} p_x: {dpx} vs {fd}");
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,139 @@
+//! A run with forward sensitivities: the chain's system with the sensitivity columns riding
+//! along ([`crate::dynamics::sensitivity::Columns`]), one augmented ODE that every method
+//! integrates as it does the chain alone. Integrating the variational equations with the
+//! run's own method gives the derivative of the method's own map (for rk4 and the Gauss
+//! methods exactly, up to the implicit stages' convergence), so the Gauss methods'
+//! sensitivity to the initial `(theta, p)` is symplectic; dop853 controls the error of the
+//! chain's state only, so its columns follow the state's steps.
+use super::simulate::{Traced, Trajectory};
+use crate::dynamics::base::Drive;
+use crate::dynamics::general::Load;
+use crate::dynamics::sensitivity::{directions, Columns, Input};
+use crate::dynamics::system::{singular, ChainSystem, Form, Layout, OdeSystem};
+use crate::dynamics::torque::TorqueSource;
+use crate::error::{Error, Result};
+use crate::model::Chain;
+
+pub(crate) struct Sensitive<'c, T> {
+    chain: &'c Chain,
+    sys: ChainSystem<&'c Chain, T>,
+    cols: Columns,
+    /// The chain's state's length, where the columns start.
+    base: usize,
+}
+
+impl<'c, T: TorqueSource> Sensitive<'c, T> {
+    pub fn new(chain: &'c Chain, sys: ChainSystem<&'c Chain, T>, inputs: &[Input], drive: &Drive) -> Result<Self> {
+        if sys.torque_uses_state() {
+            return Err(Error::input(
+                "sensitivities need torques that depend on time only (a constant, Sinusoid, Table or f(t)), \
+                 not a feedback f(t, theta, omega)",
+            ));
+        }
+        if drive.force.as_ref().is_some_and(|f| f.is_feedback()) {
+            return Err(Error::input(
+                "sensitivities need a cart force that depends on time only, not a feedback f(t, state)",
+            ));
+        }
+        let cols = Columns::new(chain, sys.form(), directions(inputs, chain.n())?);
+        Ok(Sensitive { chain, base: sys.layout().dim(), cols, sys })
+    }
+
+    pub fn columns(&self) -> &Columns {
+        &self.cols
+    }
+
+    fn load(&self, t: f64) -> Result<Load> {
+        let chain = self.chain;
+        Ok(if self.sys.layout().pivot { Load::pivot(chain, self.sys.pivot_motion(t)?.acc) } else { Load::still(chain) })
+    }
+}
+
+impl<T: TorqueSource> OdeSystem for Sensitive<'_, T> {
+    fn dim(&self) -> usize {
+        self.base + self.cols.len()
+    }
+
+    /// The chain's Jacobian on every diagonal block (the columns' equations are `J S + f_P`),
+    /// leaving out the columns' dependence on the state: an approximate Jacobian, for the
+    /// implicit methods' simplified Newton iteration, whose error matrix is then strictly
+    /// block-lower-triangular, so the iteration still converges to the exact stages.
+    fn jacobian(&mut self, t: f64, y: &[f64], out: &mut [f64]) -> Result<bool> {
+        let (b, m, dim) = (self.base, self.cols.mech, self.dim());
+        let mut jac = vec![0.0; b * b];
+        if !self.sys.jacobian(t, &y[..b], &mut jac)? {
+            return Ok(false);
+        }
+        out[..dim * dim].fill(0.0);
+        for r in 0..b {
+            out[r * dim..r * dim + b].copy_from_slice(&jac[r * b..(r + 1) * b]);
+        }
+        for c in 0..self.cols.dirs.len() {
+            let o = b + c * m;
+            for r in 0..m {
+                out[(o + r) * dim + o..(o + r) * dim + o + m].copy_from_slice(&jac[r * b..r * b + m]);
+            }
+        }
+        Ok(true)
+    }
+
+    fn rhs(&mut self, t: f64, y: &[f64], dy: &mut [f64]) -> Result<()> {
+        let b = self.base;
+        let (dy_state, dy_cols) = dy.split_at_mut(b);
+        self.sys.rhs(t, &y[..b], dy_state)?;
+        let load = self.load(t)?;
+        let chain = self.chain;
+        self.cols.rates(chain, &load, &y[..b], dy_state, &y[b..], dy_cols).map_err(|s| singular(t, y, s))
+    }
+}
+
+impl<T: TorqueSource> Traced for Sensitive<'_, T> {
+    fn form(&self) -> Form {
+        self.sys.form()
+    }
+
+    fn layout(&self) -> Layout {
+        self.sys.layout()
+    }
+
+    fn start(&mut self, mut y: Vec<f64>) -> Result<Vec<f64>> {
+        let chain = self.chain;
+        let n = chain.n();
+        let load = self.load(0.0)?;
+        // The rates at t = 0: the Lagrangian state holds them, the Hamiltonian one gives them.
+        let mut dy = vec![0.0; self.base];
+        self.sys.rhs(0.0, &y, &mut dy)?;
+        let (omega0, v0) = match self.sys.form() {
+            Form::Lagrangian => (y[n..2 * n].to_vec(), if chain.cart().is_some() { y[2 * n + 1] } else { 0.0 }),
+            Form::Hamiltonian => (dy[..n].to_vec(), if chain.cart().is_some() { dy[2 * n] } else { 0.0 }),
+        };
+        let mut cols = vec![0.0; self.cols.len()];
+        self.cols.initial(chain, &load, &y[..n], &omega0, v0, &mut cols).map_err(|s| singular(0.0, &y, s))?;
+        y.extend_from_slice(&cols);
+        Ok(y)
+    }
+
+    fn sensitivities(&mut self, chain: &Chain, rec: &[f64], t: &[f64], tr: &mut Trajectory) -> Result<()> {
+        let (d, b, k, m) = (self.dim(), self.base, self.cols.dirs.len(), self.cols.mech);
+        let hamiltonian = self.sys.form() == Form::Hamiltonian;
+        tr.directions = k;
+        tr.sensitivities = vec![0.0; t.len() * m * k];
+        if hamiltonian {
+            tr.canonical = vec![0.0; t.len() * m * k];
+        }
+        for (r, row) in rec.chunks(d).enumerate() {
+            let load = self.load(t[r])?;
+            let out = &mut tr.sensitivities[r * m * k..(r + 1) * m * k];
+            self.cols.output(chain, &load, &row[..b], &row[b..], out).map_err(|s| singular(t[r], row, s))?;
+            if hamiltonian {
+                let raw = &mut tr.canonical[r * m * k..(r + 1) * m * k];
+                for c in 0..k {
+                    for i in 0..m {
+                        raw[i * k + c] = row[b + c * m + i];
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+}
