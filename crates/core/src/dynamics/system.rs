@@ -23,6 +23,13 @@ pub trait OdeSystem {
     fn jacobian(&mut self, _t: f64, _y: &[f64], _out: &mut [f64]) -> Result<bool> {
         Ok(false)
     }
+    /// The size each component of `y` is measured against when an implicit method's iteration
+    /// decides it has converged: `max(|y_m|, 1)`, unless the system knows better.
+    fn scales(&self, y: &[f64], out: &mut [f64]) {
+        for (o, v) in out.iter_mut().zip(y) {
+            *o = v.abs().max(1.0);
+        }
+    }
 }
 
 /// Where each part of a run's ODE state sits: `[theta, omega or p]`, then the cart's

@@ -78,6 +78,8 @@ pub struct Gauss {
     k: Vec<f64>,
     k_new: Vec<f64>,
     stage: Vec<f64>,
+    /// What each component's increments are measured against ([`OdeSystem::scales`]).
+    scale: Vec<f64>,
     comp: Vec<f64>,
     /// The step size whose stages `k` hold, if any (the extrapolated start needs the same h).
     last_h: Option<f64>,
@@ -133,6 +135,7 @@ impl Gauss {
             k: vec![0.0; stages * dim],
             k_new: vec![0.0; stages * dim],
             stage: vec![0.0; dim],
+            scale: vec![0.0; dim],
             comp: vec![0.0; dim],
             last_h: None,
             iterations: 0,
@@ -145,6 +148,7 @@ impl Gauss {
     /// finite numbers, or a stage left the chain's domain).
     fn fixed_point<S: OdeSystem>(&mut self, sys: &mut S, t: f64, y: &[f64], h: f64) -> Result<bool> {
         let (s, d) = (self.s, y.len());
+        sys.scales(y, &mut self.scale);
         let (mut prev, mut growing) = (f64::INFINITY, 0);
         for _ in 0..MAX_ITERATIONS {
             self.iterations += 1;
@@ -162,7 +166,7 @@ impl Gauss {
             for i in 0..s {
                 for m in 0..d {
                     let change = h * (self.k_new[i * d + m] - self.k[i * d + m]);
-                    delta = delta.max(change.abs() / y[m].abs().max(1.0));
+                    delta = delta.max(change.abs() / self.scale[m]);
                 }
             }
             std::mem::swap(&mut self.k, &mut self.k_new);
@@ -240,7 +244,7 @@ impl Gauss {
                         return Ok(false);
                     }
                     self.k[i * d + m] += change;
-                    delta = delta.max((h * change).abs() / y[m].abs().max(1.0));
+                    delta = delta.max((h * change).abs() / self.scale[m]);
                 }
             }
             if delta == 0.0 || (delta >= prev && delta < 1e-13) {

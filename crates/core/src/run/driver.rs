@@ -72,6 +72,10 @@ impl<S: OdeSystem> OdeSystem for Counted<S> {
     fn jacobian(&mut self, t: f64, y: &[f64], out: &mut [f64]) -> Result<bool> {
         self.sys.jacobian(t, y, out)
     }
+
+    fn scales(&self, y: &[f64], out: &mut [f64]) {
+        self.sys.scales(y, out)
+    }
 }
 
 /// Number of fixed steps to reach `t_end`; the last one is shortened when `dt` does not divide it.

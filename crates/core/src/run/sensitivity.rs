@@ -77,6 +77,16 @@ impl<T: TorqueSource> OdeSystem for Sensitive<'_, T> {
         Ok(true)
     }
 
+    /// The chain's state as usual; a column's entries against the column's largest (at least
+    /// 1): round-off in a column scales with its size, not with each entry's.
+    fn scales(&self, y: &[f64], out: &mut [f64]) {
+        let (b, m) = (self.base, self.cols.mech);
+        self.sys.scales(&y[..b], &mut out[..b]);
+        for (o, col) in out[b..].chunks_mut(m).zip(y[b..].chunks(m)) {
+            o.fill(col.iter().fold(1.0, |a, v| a.max(v.abs())));
+        }
+    }
+
     fn rhs(&mut self, t: f64, y: &[f64], dy: &mut [f64]) -> Result<()> {
         let b = self.base;
         let (dy_state, dy_cols) = dy.split_at_mut(b);
