@@ -221,3 +221,20 @@ def test_bad_requests_are_refused_with_the_valid_names():
     # A single name reads as a list of one.
     one = mp.simulate(chain, [0.5, 0.1], [0, 0], 1.0, method="rk4", dt=0.01, sensitivities="g")
     assert list(one.sensitivities) == ["g"]
+
+
+def test_the_sensitivities_page_examples_run_in_order():
+    import re
+    from pathlib import Path
+
+    page = Path(__file__).resolve().parents[1] / "docs" / "sensitivities.md"
+    blocks = re.findall(r"```python\n(.*?)```", page.read_text(), flags=re.S)
+    assert len(blocks) >= 3
+    namespace: dict = {}
+    for i, block in enumerate(blocks):
+        exec(compile(block, f"docs/sensitivities.md python block {i}", "exec"), namespace)
+    # The page's claims: the symplectic defect at round-off, the fit near the truth.
+    m, j = namespace["m"], namespace["j"]
+    assert np.abs(m.T @ j @ m - j).max() / np.abs(m).max() ** 2 < 1e-14
+    result = namespace["result"]
+    assert np.all(np.abs(result.values["lengths"] - [1.0, 0.8]) < 3 * result.stderr["lengths"])

@@ -14,7 +14,8 @@ import typing as _typing
 from . import _core
 from ._base import Cart, Pivot
 from ._chain import Chain
-from ._simulate import DEFAULTS, METHOD_INFO, METHODS, Crossing, Event, EventRecord, Flip, Solution, Stats, Work, resume, simulate
+from ._fit import FitResult, fit
+from ._simulate import DEFAULTS, METHOD_INFO, METHODS, SENSITIVITIES, Crossing, Event, EventRecord, Flip, Solution, Stats, Work, resume, simulate
 from ._torque import Sinusoid, Table
 from .checkpoint import load_checkpoint
 from .chaos import EnsembleResult, FlipMap, LyapunovResult, ensemble, PoincareSection, plot_poincare, poincare, flip_energy_threshold, flip_map, flip_times, lyapunov, trustworthy_until
@@ -29,7 +30,7 @@ from .sweeps import open_flip_map, open_indicator_map, sweep, sweep_flip_map, sw
 __version__ = _core.__version__
 
 __all__ = [
-    "Chain", "Cart", "Pivot", "Work", "simulate", "resume", "load_checkpoint", "Solution", "Stats", "Flip", "Crossing", "Event", "EventRecord", "METHODS", "METHOD_INFO", "Sinusoid", "Table",
+    "Chain", "Cart", "Pivot", "Work", "simulate", "resume", "load_checkpoint", "Solution", "Stats", "Flip", "Crossing", "Event", "EventRecord", "METHODS", "METHOD_INFO", "SENSITIVITIES", "fit", "FitResult", "Sinusoid", "Table",
     "InputError", "IntegrationError", "__version__",
     "normal_modes", "NormalModes", "linearize", "animate_mode", "plot_modes",
     "sweep", "sweep_flip_map", "open_flip_map", "plot_flip_map",
