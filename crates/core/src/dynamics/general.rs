@@ -94,7 +94,7 @@ impl Chain {
     }
 
     /// The derivative of [`Chain::add_losses`] along `d_omega`, added to `dq`.
-    fn add_loss_tangent(&self, omega: &[f64], d_omega: &[f64], dq: &mut [f64]) {
+    pub(super) fn add_loss_tangent(&self, omega: &[f64], d_omega: &[f64], dq: &mut [f64]) {
         let j = &self.joints;
         let (b, f, vs) = (&j.damping, &j.friction, j.friction_velocity);
         let (mut prev, mut d_prev) = (0.0, 0.0);
@@ -117,7 +117,7 @@ impl Chain {
 
     /// The cart's pivot of the elimination: `M_c + M - G_xx`, the inertia the cart feels.
     #[inline]
-    fn cart_inertia(&self, art: Articulated) -> Result<f64, Singular> {
+    pub(super) fn cart_inertia(&self, art: Articulated) -> Result<f64, Singular> {
         let total = self.cart.map_or(0.0, |c| c.mass) + self.total_mass();
         let den = total - art.gxx;
         if !(den > PIVOT_TOL * total) {
@@ -370,29 +370,9 @@ impl Chain {
         &self,
         theta: &[f64],
         omega: &[f64],
-        rates: (&[f64], f64),
-        load: &Load,
-        direction: (&[f64], &[f64], f64),
-        out: &mut [f64],
-        scratch: &mut [f64],
-        ws: &mut Workspace,
-    ) -> Result<f64, Singular> {
-        self.tangent_forced(theta, omega, rates, load, direction, None, out, scratch, ws)
-    }
-
-    /// [`Chain::tangent_general`] with a forcing: `forcing = (b, b_x)` is added to the
-    /// right-hand side of the mass-matrix solve (the angles' rows and the cart's), so the result
-    /// is `d q_ddot + M^-1 (b, b_x)`: a parameter's sensitivity direction
-    /// ([`super::sensitivity`]) in the same solve.
-    #[allow(clippy::too_many_arguments)]
-    pub(crate) fn tangent_forced(
-        &self,
-        theta: &[f64],
-        omega: &[f64],
         (accel, x_ddot): (&[f64], f64),
         load: &Load,
         (d_theta, d_omega, d_v): (&[f64], &[f64], f64),
-        forcing: Option<(&[f64], f64)>,
         out: &mut [f64],
         scratch: &mut [f64],
         ws: &mut Workspace,
@@ -439,14 +419,8 @@ impl Chain {
             self.add_loss_tangent(&omega[..n], &d_omega[..n], out);
         }
         let mut row = 0.0;
-        if let Some((b, b_x)) = forcing {
-            for a in 0..n {
-                out[a] += b[a];
-            }
-            row = b_x;
-        }
         if let Some(cart) = self.cart {
-            row += -cart.damping * d_v;
+            row = -cart.damping * d_v;
             for b in 0..n {
                 let (s, c) = (ws.sin[b], ws.cos[b]);
                 row += h[b] * (c * d_theta[b] * omega[b] * omega[b] + 2.0 * s * omega[b] * d_omega[b] + s * d_theta[b] * accel[b]);

@@ -24,6 +24,12 @@ pub const fn facts(stages: usize) -> Facts {
 
 const MAX_ITERATIONS: usize = 100;
 
+/// The largest iteration matrix (bytes) the simplified Newton iteration factors: beyond it (a
+/// chain of thousands of links, or a run with many sensitivity directions) the stages are left
+/// to the fixed-point iteration, whose failure is reported (reduce dt), rather than a dense
+/// matrix allocated past the machine's memory.
+const NEWTON_MAX_BYTES: f64 = (1u64 << 30) as f64;
+
 /// LU factorisation with partial pivoting in place (row-major `m x m`); `None` if singular.
 fn lu_factor(a: &mut [f64], m: usize) -> Option<Vec<usize>> {
     let mut piv = vec![0; m];
@@ -193,6 +199,9 @@ impl Gauss {
     /// system has no Jacobian or the iteration does not converge either.
     fn newton<S: OdeSystem>(&mut self, sys: &mut S, t: f64, y: &[f64], h: f64) -> Result<bool> {
         let (s, d) = (self.s, y.len());
+        if ((s * d) as f64).powi(2) * 8.0 > NEWTON_MAX_BYTES {
+            return Ok(false);
+        }
         let mut jac = vec![0.0; d * d];
         if !sys.jacobian(t, y, &mut jac)? {
             return Ok(false);

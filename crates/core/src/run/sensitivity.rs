@@ -77,13 +77,14 @@ impl<T: TorqueSource> OdeSystem for Sensitive<'_, T> {
         Ok(true)
     }
 
-    /// The chain's state as usual; a column's entries against the column's largest (at least
-    /// 1): round-off in a column scales with its size, not with each entry's.
+    /// The chain's state as usual; a column's entries against the column's 1-norm (at least
+    /// 1): the O(N) recursions mix a column's entries, so its round-off scales with their sum,
+    /// not with each entry.
     fn scales(&self, y: &[f64], out: &mut [f64]) {
         let (b, m) = (self.base, self.cols.mech);
         self.sys.scales(&y[..b], &mut out[..b]);
         for (o, col) in out[b..].chunks_mut(m).zip(y[b..].chunks(m)) {
-            o.fill(col.iter().fold(1.0, |a, v| a.max(v.abs())));
+            o.fill(col.iter().map(|v| v.abs()).sum::<f64>().max(1.0));
         }
     }
 
