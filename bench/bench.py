@@ -20,6 +20,9 @@ reported, not timed):
       in our vector env against gymnasium's Acrobot-v1 and MuJoCo InvertedDoublePendulum-v5 in
       a SyncVectorEnv (env-steps per second), and the cost of one env.step against the bare
       core: bench/bench_envs.py, run as a subprocess (alone: bench/run [--quick] --only f).
+  (g) datasets (mp.make_dataset): a million double-pendulum trajectories of 100 samples streamed
+      to Zarr on Dask, time and peak memory against a run ten times smaller: bench/bench_dataset.py,
+      run as a subprocess (alone: bench/run [--quick] --only g).
 Speeds are measured in alternation (bench_engine.measure) so background load falls on every
 contender alike; times are medians of several repeats, with their ranges.
 """
@@ -262,6 +265,28 @@ def model_summary(model):
                              ", ".join(f"{x['acc_ratio']['cart']:.2f}x (N = {x['n']})"
                                        for x in links), "—", "—"))
     return L
+
+
+# ----------------------------------------------------------------------------- (g) datasets
+
+
+def run_dataset(quick, python):
+    """bench_dataset.py as a subprocess: its JSON and its Markdown section (its own title)."""
+    script = BENCH / "bench_dataset.py"
+    out_json, out_md = BUILD / "dataset.json", BUILD / "dataset.md"
+    for p in (out_json, out_md):
+        p.unlink(missing_ok=True)
+    cmd = [python, str(script), *(["--quick"] if quick else []), "--json", str(out_json), "--md", str(out_md)]
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    res = {"cmd": " ".join(["bench/bench_dataset.py", *cmd[2:3 if quick else 2]]),
+           "seconds": time.perf_counter() - t0}
+    if not out_md.exists():
+        tail = (proc.stderr or proc.stdout).strip().splitlines()[-5:]
+        return {**res, "status": "failed", "md": f"## (g) Datasets\n\nNot run: exit code {proc.returncode}: "
+                + " / ".join(tail) + "\n"}
+    res.update(status="ok" if proc.returncode == 0 else "failed", md=out_md.read_text())
+    return res
 
 
 # ----------------------------------------------------------------------------- (f) environments
@@ -854,7 +879,7 @@ def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--quick", action="store_true", help="smaller scans (under 5 min on 2 cores)")
     p.add_argument("--repeats", type=int, default=None, help="repeats per measurement (>= 3)")
-    p.add_argument("--only", default="abcdef", help="workloads to run, e.g. 'bd' (default: all)")
+    p.add_argument("--only", default="abcdefg", help="workloads to run, e.g. 'bd' (default: all)")
     args = p.parse_args(argv)
     args.repeats = max(3, args.repeats or (5 if args.quick else 7))
     start = time.perf_counter()
@@ -897,6 +922,10 @@ def main(argv=None):
             log(f"  (f) {envs.get('status')}: {envs.get('why', 'a part failed, see its section')}")
     else:
         envs = {"status": "not run", "why": "left out with --only"}
+    dataset = {}
+    if "g" in args.only:
+        log("(g) datasets streamed to Zarr (bench_dataset.py) ...")
+        dataset = run_dataset(args.quick, sys.executable)
     busy = sorted(set(busy) | set(E.busy_compilers()))
     if hasattr(os, "getloadavg"):
         info["load average at end (1, 5, 15 min)"] = " ".join(f"{x:.2f}" for x in os.getloadavg())
@@ -907,12 +936,15 @@ def main(argv=None):
            "flip": {k: v for k, v in flip.items() if k != "md"}, "wp": wp, "info": info,
            "model": {k: v for k, v in model.items() if k != "md"},
            "envs": {k: v for k, v in envs.items() if k != "md"},
+           "dataset": {k: v for k, v in dataset.items() if k != "md"},
            "versions": vers, "elapsed": elapsed, "quick": args.quick}
     BUILD.mkdir(exist_ok=True)
     (BUILD / "results.json").write_text(json.dumps(raw, indent=1, default=str))
     if set(args.only) >= set("abd"):
         report = render(args, info, vers, c_cmd, elapsed, busy, rk4, numba_dp, acc_rows,
                         acc_fit, dop, chains, fits, flip, wp, model, envs)
+        if dataset:
+            report += "\n" + dataset["md"]
         RESULTS.write_text(report, encoding="utf-8")
         print(report)
     elif "f" in args.only:
@@ -922,6 +954,8 @@ def main(argv=None):
         print("\n".join(["| target | multipendulum | peer | ratio | target | result |",
                          "|---|---|---|---|---|---|", *envs_summary(envs)]) + "\n")
         print(envs_section(envs))
+    if dataset and not set(args.only) >= set("abd"):
+        print(dataset["md"])  # a partial run: (g)'s section as it would stand in RESULTS.md
     log(f"done in {elapsed / 60:.1f} min")
     return 0
 

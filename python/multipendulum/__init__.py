@@ -14,6 +14,7 @@ import typing as _typing
 from . import _core
 from ._base import Cart, Pivot
 from ._chain import Chain
+from ._dataset import Dataset, load_dataset, make_dataset, read_dataset_config
 from ._fit import FitResult, fit
 from ._simulate import DEFAULTS, METHOD_INFO, METHODS, SENSITIVITIES, Crossing, Event, EventRecord, Flip, Solution, Stats, Work, resume, simulate
 from ._torque import Sinusoid, Table
@@ -38,6 +39,7 @@ __all__ = [
     "ensemble", "EnsembleResult", "poincare", "PoincareSection", "plot_poincare", "lyapunov", "LyapunovResult", "trustworthy_until", "flip_energy_threshold", "flip_times", "flip_map", "FlipMap",
     "INDICATORS", "indicator", "IndicatorResult", "megno", "fli", "sali", "gali", "indicator_map", "IndicatorMap",
     "zero_one_test", "ZeroOneResult",
+    "make_dataset", "load_dataset", "read_dataset_config", "Dataset",
 ]
 
 

@@ -2,8 +2,10 @@
 
 Subcommands: ``run`` a scenario file, ``animate`` or ``plot`` a results file, ``demo`` (the
 chaotic double pendulum, end to end), ``serve`` the browser viewer, ``fractal`` a flip-time map
-of a scenario's chain, ``atlas`` a map of a chaos indicator (or the flip-time map) of it. Each subcommand is one function decorated with :func:`command`, which
-adds its parser and sets its handler; adding a subcommand means adding one such function.
+of a scenario's chain, ``atlas`` a map of a chaos indicator (or the flip-time map) of it,
+``dataset`` an ML dataset of random trajectories from a dataset config. Each subcommand is one
+function decorated with :func:`command`, which adds its parser and sets its handler; adding a
+subcommand means adding one such function.
 Handlers return the exit status.
 
 Exit status: 0 on success, 1 for a bad scenario, bad input or a failed integration (the message
@@ -878,6 +880,52 @@ def _cmd_atlas(args) -> int:
     path = plot_indicator_map(im, args.output, chain=chain, vary=vary, base_theta=base_theta, base_omega=base_omega,
                               k=args.k, title=f"{title}: {label} at t = {t_end:g} s", dpi=args.dpi)
     _say(args, f"wrote {path}")
+    return 0
+
+
+@command
+def _add_dataset(sub, common) -> None:
+    p = sub.add_parser(
+        "dataset", parents=[common], help="make an ML dataset of random trajectories (NPZ or Zarr, with a card)",
+        description="Simulate the random trajectories a dataset config (TOML, see docs/datasets.md) describes and "
+                    "write them into DIR: data.npz or data.zarr (q, p, qdot, qddot, dH/dq, dH/dp, energy, the "
+                    "parameters, the split, optionally frames) and the dataset card, card.json and card.md. The "
+                    "same config and seed give the same files as mp.make_dataset(DIR, **config).",
+    )
+    p.add_argument("config", type=Path, metavar="CONFIG", help="dataset config (.toml)")
+    p.add_argument("-o", "--output", type=Path, required=True, metavar="DIR", help="output directory")
+    p.add_argument("--trajectories", type=int, metavar="N", help="make N trajectories instead of the config's "
+                   "(recorded in the card)")
+    p.add_argument("--format", choices=("auto", "npz", "zarr"), help="output format instead of the config's")
+    p.add_argument("--chunk", type=int, metavar="K", help="trajectories per Dask task and Zarr chunk")
+    p.add_argument("--dask", metavar="ADDRESS", help="a dask.distributed scheduler address (tcp://host:8786), or "
+                   "'threads' (the default) / 'processes' / 'sync' for Dask's local schedulers")
+    p.set_defaults(handler=_cmd_dataset)
+
+
+def _cmd_dataset(args) -> int:
+    import multipendulum as mp
+    from ._dataset import make_dataset, read_dataset_config
+
+    config = read_dataset_config(args.config)  # its messages name the file
+    for key in ("trajectories", "format", "chunk"):
+        if getattr(args, key) is not None:
+            config[key] = getattr(args, key)
+    start = time.perf_counter()
+    with ProgressBar("dataset", quiet=args.quiet) as bar:
+        try:
+            ds = make_dataset(args.output, scheduler=args.dask, progress=bar, **config)
+        except ImportError as exc:
+            return _error(str(exc))
+        except mp.InputError as exc:
+            raise mp.InputError(f"{args.config}: {exc}") from None
+    card = ds.card
+    splits = ", ".join(f"{k} {v}" for k, v in ds.splits.items())
+    _say(args, f"{card['name'] or args.config.stem}: {card['trajectories']} trajectories x {card['samples']} "
+               f"samples, N = {card['links']}, {card['format']}; splits {splits}; wall time "
+               f"{time.perf_counter() - start:.3g} s",
+         f"wrote {args.output / card['data']}", f"wrote {args.output / 'card.json'}",
+         f"wrote {args.output / 'card.md'}")
     return 0
 
 
