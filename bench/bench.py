@@ -23,6 +23,9 @@ reported, not timed):
   (g) datasets (mp.make_dataset): a million double-pendulum trajectories of 100 samples streamed
       to Zarr on Dask, time and peak memory against a run ten times smaller: bench/bench_dataset.py,
       run as a subprocess (alone: bench/run [--quick] --only g).
+  (h) sensitivities: a run with k sensitivity directions against the same run without, for
+      N = 2, 10, 100 and rk4, dop853, gauss6: bench/bench_sensitivity.py, run as a subprocess
+      (alone: bench/run [--quick] --only h).
 Speeds are measured in alternation (bench_engine.measure) so background load falls on every
 contender alike; times are medians of several repeats, with their ranges.
 """
@@ -267,23 +270,23 @@ def model_summary(model):
     return L
 
 
-# ----------------------------------------------------------------------------- (g) datasets
+# ----------------------------------------------------------------------------- (g) datasets, (h) sensitivities
 
 
-def run_dataset(quick, python):
-    """bench_dataset.py as a subprocess: its JSON and its Markdown section (its own title)."""
-    script = BENCH / "bench_dataset.py"
-    out_json, out_md = BUILD / "dataset.json", BUILD / "dataset.md"
+def run_section(stem, title, quick, python):
+    """bench_<stem>.py as a subprocess: its JSON and its Markdown section (its own title)."""
+    script = BENCH / f"bench_{stem}.py"
+    out_json, out_md = BUILD / f"{stem}.json", BUILD / f"{stem}.md"
     for p in (out_json, out_md):
         p.unlink(missing_ok=True)
     cmd = [python, str(script), *(["--quick"] if quick else []), "--json", str(out_json), "--md", str(out_md)]
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True)
-    res = {"cmd": " ".join(["bench/bench_dataset.py", *cmd[2:3 if quick else 2]]),
+    res = {"cmd": " ".join([f"bench/bench_{stem}.py", *cmd[2:3 if quick else 2]]),
            "seconds": time.perf_counter() - t0}
     if not out_md.exists():
         tail = (proc.stderr or proc.stdout).strip().splitlines()[-5:]
-        return {**res, "status": "failed", "md": f"## (g) Datasets\n\nNot run: exit code {proc.returncode}: "
+        return {**res, "status": "failed", "md": f"## {title}\n\nNot run: exit code {proc.returncode}: "
                 + " / ".join(tail) + "\n"}
     res.update(status="ok" if proc.returncode == 0 else "failed", md=out_md.read_text())
     return res
@@ -879,7 +882,7 @@ def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--quick", action="store_true", help="smaller scans (under 5 min on 2 cores)")
     p.add_argument("--repeats", type=int, default=None, help="repeats per measurement (>= 3)")
-    p.add_argument("--only", default="abcdefg", help="workloads to run, e.g. 'bd' (default: all)")
+    p.add_argument("--only", default="abcdefgh", help="workloads to run, e.g. 'bd' (default: all)")
     args = p.parse_args(argv)
     args.repeats = max(3, args.repeats or (5 if args.quick else 7))
     start = time.perf_counter()
@@ -922,10 +925,13 @@ def main(argv=None):
             log(f"  (f) {envs.get('status')}: {envs.get('why', 'a part failed, see its section')}")
     else:
         envs = {"status": "not run", "why": "left out with --only"}
-    dataset = {}
+    dataset, sens = {}, {}
     if "g" in args.only:
         log("(g) datasets streamed to Zarr (bench_dataset.py) ...")
-        dataset = run_dataset(args.quick, sys.executable)
+        dataset = run_section("dataset", "(g) Datasets", args.quick, sys.executable)
+    if "h" in args.only:
+        log("(h) sensitivities against plain runs (bench_sensitivity.py) ...")
+        sens = run_section("sensitivity", "(h) Sensitivities", args.quick, sys.executable)
     busy = sorted(set(busy) | set(E.busy_compilers()))
     if hasattr(os, "getloadavg"):
         info["load average at end (1, 5, 15 min)"] = " ".join(f"{x:.2f}" for x in os.getloadavg())
@@ -937,14 +943,16 @@ def main(argv=None):
            "model": {k: v for k, v in model.items() if k != "md"},
            "envs": {k: v for k, v in envs.items() if k != "md"},
            "dataset": {k: v for k, v in dataset.items() if k != "md"},
+           "sensitivity": {k: v for k, v in sens.items() if k != "md"},
            "versions": vers, "elapsed": elapsed, "quick": args.quick}
     BUILD.mkdir(exist_ok=True)
     (BUILD / "results.json").write_text(json.dumps(raw, indent=1, default=str))
     if set(args.only) >= set("abd"):
         report = render(args, info, vers, c_cmd, elapsed, busy, rk4, numba_dp, acc_rows,
                         acc_fit, dop, chains, fits, flip, wp, model, envs)
-        if dataset:
-            report += "\n" + dataset["md"]
+        for extra in (dataset, sens):
+            if extra:
+                report += "\n" + extra["md"]
         RESULTS.write_text(report, encoding="utf-8")
         print(report)
     elif "f" in args.only:
@@ -954,8 +962,10 @@ def main(argv=None):
         print("\n".join(["| target | multipendulum | peer | ratio | target | result |",
                          "|---|---|---|---|---|---|", *envs_summary(envs)]) + "\n")
         print(envs_section(envs))
-    if dataset and not set(args.only) >= set("abd"):
-        print(dataset["md"])  # a partial run: (g)'s section as it would stand in RESULTS.md
+    if not set(args.only) >= set("abd"):
+        for extra in (dataset, sens):  # a partial run: the sections as they would stand in RESULTS.md
+            if extra:
+                print(extra["md"])
     log(f"done in {elapsed / 60:.1f} min")
     return 0
 
