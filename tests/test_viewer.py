@@ -697,8 +697,14 @@ def test_a_cart_scenario_draws_the_cart_and_moves_it(open_page):
     xs = [s["cart"]["x"] for s in samples]
     assert max(xs) - min(xs) > 0.05, xs
     assert p.page.locator("#cart-x").inner_text() != "-0.200 m"
+    # Where the run paused depends on the frames' timing (the cart swings back and forth): play
+    # on until the cart is well away from its start, then the block must be drawn elsewhere.
+    p.page.click("#play")
+    p.wait("Math.abs(multipendulum.state.terms.cart.x + 0.2) > 0.1")
+    p.page.click("#play")
+    moved = p.js("multipendulum.state.terms.cart.x") + 0.2
     count, x_after = _cart_pixels(p)
-    assert count > 200 and abs(x_after - x_before) > 5, (x_before, x_after)
+    assert count > 200 and abs(x_after - x_before) > 5 and (x_after - x_before) * moved > 0, (x_before, x_after, moved)
     # The pivot rides on the cart: the base is the cart's position at y = 0.
     last = samples[-1]
     assert last["base"] == [last["cart"]["x"], 0]
