@@ -99,3 +99,19 @@ def test_bad_fits_are_refused():
                                          r"Jacobian has rank 3 for 4 values"):
         mp.fit(mp.Chain([1.0, 0.8], [1.2, 0.5], damping=[0.12, 0.09]), t, theta,
                params=["masses", "damping"], theta0=[1.0, 0.2])
+
+
+def test_more_bad_input_is_refused():
+    chain = mp.Chain([1.0, 0.8], [1.0, 0.6])
+    t = np.linspace(0, 1, 11)
+    theta = mp.simulate(chain, [1.0, 0.2], [0, 0], 1.0, t_eval=t).theta
+    with pytest.raises(InputError, match=r"^t must hold at least two ascending times"):
+        mp.fit(chain, np.r_[t[:-1], np.nan], theta)
+    with pytest.raises(InputError, match=r"^params\['masses'\] must be None or a list of integer indices, got 'a'$"):
+        mp.fit(chain, t, theta, params={"masses": "a"})
+    with pytest.raises(InputError, match=r"^params\['masses'\] must be None or a list of integer indices, got \[1.7\]$"):
+        mp.fit(chain, t, theta, params={"masses": [1.7]})
+    with pytest.raises(InputError, match=r"^fit sets bounds, x_scale of least_squares itself"):
+        mp.fit(chain, t, theta, params=["lengths"], bounds=(0, 1), x_scale=1.0)
+    with pytest.raises(InputError, match=r"^cart_x0, cart_v0 and cart_force need a chain with a cart"):
+        mp.fit(chain, t, theta, params=["lengths"], cart_v0=1.0)

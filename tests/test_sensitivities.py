@@ -238,3 +238,39 @@ def test_the_sensitivities_page_examples_run_in_order():
     assert np.abs(m.T @ j @ m - j).max() / np.abs(m).max() ** 2 < 1e-14
     result = namespace["result"]
     assert np.all(np.abs(result.values["lengths"] - [1.0, 0.8]) < 3 * result.stderr["lengths"])
+
+
+def test_the_hamiltonian_form_on_a_pivot_shaken_both_ways():
+    # The columns of (theta, p) turned into rates through omega = M^-1 p, in the pivot's frame.
+    pivot = mp.Pivot(x=mp.Sinusoid(0.03, 15.0), y=mp.Sinusoid(0.05, 20.0))
+    chain = mp.Chain([1.0, 0.8], [1.0, 0.7], com=[0.55, 0.35], inertia=[0.04, 0.02])
+    kw = dict(method="rk4", dt=0.005, t_eval=T_EVAL, pivot=pivot, form="hamiltonian")
+    sol = mp.simulate(chain, [0.6, -0.4], [0.3, -0.2], 1.0, sensitivities=["omega0", "g"], **kw)
+
+    def f(e, j):
+        om = np.array([0.3, -0.2])
+        om[j] += e
+        return state(mp.simulate(chain, [0.6, -0.4], om, 1.0, **kw))
+    want = np.stack([five_point(lambda e: f(e, j), 0.1) for j in range(2)], axis=-1)
+    assert np.max(np.abs(sol.sensitivities["omega0"] - want)) <= 1e-7 * np.max(np.abs(want))
+    assert sol.canonical_sensitivities["g"].shape == sol.sensitivities["g"].shape
+
+
+def test_events_and_a_terminal_stop_keep_the_columns_to_the_stop():
+    chain = mp.Chain([1.0, 0.8], [1.0, 0.7])
+    sol = mp.simulate(chain, [2.5, 2.0], [0, 0], 10.0, method="rk4", dt=0.01, t_eval=np.linspace(0, 10, 101),
+                      events=[mp.Flip(terminal=True)], sensitivities=["theta0"])
+    plain = mp.simulate(chain, [2.5, 2.0], [0, 0], 10.0, method="rk4", dt=0.01, t_eval=np.linspace(0, 10, 101),
+                        events=[mp.Flip(terminal=True)])
+    assert sol.stopped_at is not None and sol.stopped_at == plain.stopped_at
+    assert sol.sensitivities["theta0"].shape == (sol.t.size, 4, 2) and np.array_equal(sol.theta, plain.theta)
+    assert np.all(np.isfinite(sol.sensitivities["theta0"]))
+
+
+def test_the_memory_check_counts_the_columns():
+    # 10^5 outputs of 200 links fit; with both initial-state inputs (400 directions of 400
+    # values each) they would need over a terabyte: refused before the run.
+    chain = mp.Chain(np.ones(200), np.ones(200))
+    with pytest.raises(InputError, match=r"^storing 100000 output points of 200 links needs"):
+        mp.simulate(chain, np.full(200, 0.1), np.zeros(200), 1.0, method="rk4", dt=1e-5,
+                    t_eval=np.linspace(0, 1, 100_000), sensitivities=["theta0", "omega0"])

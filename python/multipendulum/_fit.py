@@ -1,7 +1,7 @@
 """Parameter identification: fit a chain's parameters to measured angles.
 
-:func:`fit` runs SciPy's Levenberg–Marquardt–type trust-region least squares
-(``scipy.optimize.least_squares``) on the angles' misfit, with the exact Jacobian from the
+:func:`fit` runs SciPy's trust-region reflective least squares (``scipy.optimize.least_squares``,
+a Gauss–Newton method with bounds) on the angles' misfit, with the exact Jacobian from the
 run's forward sensitivities (:func:`multipendulum.simulate`'s ``sensitivities``): one run per
 iteration gives both the residuals and their derivatives.
 
@@ -36,7 +36,10 @@ from .errors import InputError, IntegrationError
 
 #: What :func:`fit` can fit: the chain's parameters, and the initial state.
 PARAMETERS = tuple(SENSITIVITIES)
-_POSITIVE = {"lengths", "masses"}  # > 0; the others >= 0 (g, com: any sign is refused below)
+_POSITIVE = {"lengths", "masses"}  # kept > 0; damping, friction, inertia >= 0; the rest free
+_FREE = {"g", "theta0", "omega0", "com"}
+#: least_squares' arguments that fit() sets itself.
+_RESERVED = {"fun", "x0", "jac", "bounds", "x_scale", "args", "kwargs"}
 _INITIAL = ("theta0", "omega0")
 
 Params = Union[Sequence[str], Mapping[str, Optional[Sequence[int]]]]
@@ -117,10 +120,12 @@ def _selection(params: Params, n: int) -> List[Tuple[str, int]]:
         if idx is None:
             chosen = list(range(size))
         else:
-            chosen = [int(j) for j in np.atleast_1d(np.asarray(idx))]
-            bad = [j for j in chosen if not 0 <= j < size]
-            if bad or len(set(chosen)) != len(chosen):
-                raise InputError(f"params[{name!r}] must be distinct indices in [0, {size}), got {list(idx)}")
+            given = list(np.atleast_1d(np.asarray(idx, dtype=object)))
+            if not all(isinstance(j, (int, np.integer)) and not isinstance(j, bool) for j in given):
+                raise InputError(f"params[{name!r}] must be None or a list of integer indices, got {idx!r}")
+            chosen = [int(j) for j in given]
+            if any(not 0 <= j < size for j in chosen) or len(set(chosen)) != len(chosen):
+                raise InputError(f"params[{name!r}] must be distinct indices in [0, {size}), got {chosen}")
         if any(nm == name for nm, _ in out):
             raise InputError(f"{name!r} is given twice in params")
         out += [(name, j) for j in chosen]
@@ -178,15 +183,12 @@ class _Model:
 
     def inputs(self) -> List[str]:
         """The sensitivities a run must carry."""
-        need = []
-        for nm, _ in self.names:
-            if nm not in need:
-                need.append(nm)
+        need = list(dict.fromkeys(nm for nm, _ in self.names))
         if self.kind != "general" and "lengths" in need:
             need.append("com")
         if self.kind == "rods" and ("lengths" in need or "masses" in need):
             need.append("inertia")
-        return list(dict.fromkeys(need))
+        return need
 
 
 def fit(chain_guess: Chain, t: npt.ArrayLike, theta_measured: npt.ArrayLike, params: Params = ("lengths", "masses", "damping"),
@@ -221,7 +223,7 @@ def fit(chain_guess: Chain, t: npt.ArrayLike, theta_measured: npt.ArrayLike, par
         raise InputError(f"theta_measured must have shape (len(t), N) = ({times.size}, {n}), got {measured.shape}")
     if not np.all(np.isfinite(measured)):
         raise InputError("theta_measured must be finite (drop the missing samples and their times)")
-    if times.size < 2 or times[0] < 0 or np.any(np.diff(times) <= 0):
+    if times.size < 2 or not np.all(np.isfinite(times)) or times[0] < 0 or np.any(np.diff(times) <= 0):
         raise InputError("t must hold at least two ascending times, from t >= 0 (the run starts at t = 0)")
     names = _selection(params, n)
     count = measured.size
@@ -238,15 +240,17 @@ def fit(chain_guess: Chain, t: npt.ArrayLike, theta_measured: npt.ArrayLike, par
         sigma = as_float(sigma, "sigma")
         if not sigma > 0:
             raise InputError(f"sigma must be > 0, got {sigma}")
+    reserved = sorted(_RESERVED & set(least_squares))
+    if reserved:
+        raise InputError(f"fit sets {', '.join(reserved)} of least_squares itself; pass the solver's other options")
     model = _Model(chain_guess, names, th0, om0)
     x0 = model.start()
     lower = np.array([1e-12 * max(abs(v), 1e-300) if nm in _POSITIVE else
-                      (-np.inf if nm in ("g", "theta0", "omega0", "com") else 0.0) for (nm, _), v in zip(names, x0)])
+                      (-np.inf if nm in _FREE else 0.0) for (nm, _), v in zip(names, x0)])
     x0 = np.maximum(x0, lower)
     weight = 1.0 if sigma is None else 1.0 / sigma
-    kw = dict(method=method, dt=dt, rtol=rtol, atol=atol, t_eval=times, torque=torque, pivot=pivot)
-    if chain_guess.cart is not None:
-        kw.update(cart_x0=cart_x0, cart_v0=cart_v0, cart_force=cart_force)
+    kw = dict(method=method, dt=dt, rtol=rtol, atol=atol, t_eval=times, torque=torque, pivot=pivot,
+              cart_x0=cart_x0, cart_v0=cart_v0, cart_force=cart_force)
     cache: Dict[bytes, Tuple[Any, Any]] = {}
 
     def evaluate(x: npt.NDArray[np.float64]) -> Tuple[Any, Any]:
@@ -271,8 +275,9 @@ def fit(chain_guess: Chain, t: npt.ArrayLike, theta_measured: npt.ArrayLike, par
                          f"{rank} for {len(names)} values (scaling every mass and the damping together leaves "
                          f"the motion unchanged: fit all masses but one, e.g. params={{'masses': [1], ...}})")
     dof = count - len(names)
-    s2 = 1.0 if sigma is None else sigma**2
-    if sigma is None:
+    if sigma is not None:
+        s2 = sigma**2
+    else:
         s2 = float(np.sum(resid**2)) / dof if dof > 0 else np.inf
     cov = s2 * np.linalg.inv(jm.T @ jm)
     err = np.sqrt(np.diag(cov))

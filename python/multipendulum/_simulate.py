@@ -235,8 +235,9 @@ class Solution:
         #: The forward sensitivities by input name, each (..., T, S, k) (:func:`simulate`'s
         #: ``sensitivities``); empty when none were asked for.
         self.sensitivities: Dict[str, npt.NDArray[np.float64]] = {}
-        #: The Gauss methods' derivatives of ``(theta, p)`` (and ``(x, p_x)``), laid out as
-        #: :attr:`sensitivities`; None for the other methods.
+        #: A Hamiltonian-form run's derivatives of ``(theta, p)`` (and ``(x, p_x)``), laid out
+        #: as :attr:`sensitivities` (the Gauss methods always; rk4 and dop853 with
+        #: ``form="hamiltonian"``); None in the Lagrangian form.
         self.canonical_sensitivities: Optional[Dict[str, npt.NDArray[np.float64]]] = None
 
     @property
@@ -383,9 +384,9 @@ def simulate(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: 
     ``lengths``: see :func:`fit`). They come from the variational equations integrated by the
     run's own method, O(N) per direction: for rk4 and the Gauss methods they are the exact
     derivatives of the computed trajectory; dop853 controls the error of the state only (its
-    steps do not depend on the sensitivities). The Gauss methods also give
-    ``sol.canonical_sensitivities``, the derivatives of ``(theta, p)``: with respect to the
-    initial ``(theta, p)`` that map is symplectic. Torques must depend on time only (an array,
+    steps do not depend on the sensitivities). A Hamiltonian-form run (the Gauss methods
+    always) also gives ``sol.canonical_sensitivities``, the derivatives of ``(theta, p)``: for
+    the Gauss methods their map of the initial ``(theta, p)`` is symplectic. Torques must depend on time only (an array,
     :class:`Sinusoid`, :class:`Table` or ``f(t)``); not with checkpoints. See
     :doc:`sensitivities`.
 

@@ -510,13 +510,15 @@ impl Columns {
         let m = self.mech;
         let cart = chain.cart.is_some();
         let Columns { dirs, sc, shared, ws, scratch, .. } = self;
+        // The parameters' forcings need their fields; the initial state's directions do not.
+        let params = dirs.iter().any(|d| matches!(d, Direction::Param(_)));
         let theta = &y[..n];
         chain.trig(theta, ws);
         match self.form {
             Form::Lagrangian => {
                 let (omega, accel) = (&y[n..2 * n], &dy[n..2 * n]);
                 let x_ddot = if cart { dy[2 * n + 1] } else { 0.0 };
-                if dirs.iter().any(|d| matches!(d, Direction::Param(_))) {
+                if params {
                     chain.prepare_forcing(&At::Lagrangian { omega, accel, x_ddot }, load, sc, ws);
                 }
                 chain.share(omega, accel, shared, ws)?;
@@ -548,7 +550,9 @@ impl Columns {
             Form::Hamiltonian => {
                 let omega = &dy[..n];
                 let v = if cart { dy[2 * n] } else { 0.0 };
-                chain.prepare_forcing(&At::Hamiltonian { omega, v }, load, sc, ws);
+                if params {
+                    chain.prepare_forcing(&At::Hamiltonian { omega, v }, load, sc, ws);
+                }
                 for (c, dir) in dirs.iter().enumerate() {
                     let (col, o) = (&cols[c * m..(c + 1) * m], &mut out[c * m..(c + 1) * m]);
                     let dpx = match *dir {

@@ -126,6 +126,9 @@ pub struct ChainSystem<C, T> {
     scratch: Vec<f64>,
     /// The layout's indices, looked up once.
     slots: Slots,
+    /// The gravity (with the pivot's acceleration) and cart force of the last evaluation, for
+    /// what rides along it (the sensitivity columns) without evaluating the pivot again.
+    last_load: Load,
 }
 
 #[derive(Debug, Clone, Copy, Default)]
@@ -139,7 +142,7 @@ struct Slots {
 
 impl<C: Borrow<Chain>, T: TorqueSource> ChainSystem<C, T> {
     pub fn new(chain: C, torque: T, form: Form) -> Self {
-        let n = chain.borrow().n();
+        let (n, still) = (chain.borrow().n(), Load::still(chain.borrow()));
         let mut sys = ChainSystem {
             chain,
             torque,
@@ -152,6 +155,7 @@ impl<C: Borrow<Chain>, T: TorqueSource> ChainSystem<C, T> {
             state: Vec::new(),
             scratch: Vec::new(),
             slots: Slots::default(),
+            last_load: still,
         };
         sys.arrange();
         sys
@@ -225,6 +229,12 @@ impl<C: Borrow<Chain>, T: TorqueSource> ChainSystem<C, T> {
         self.chain.borrow()
     }
 
+    /// What acted on the chain in the last evaluation of the right-hand side besides its
+    /// torques (a fixed pivot's gravity before any).
+    pub fn last_load(&self) -> Load {
+        self.last_load
+    }
+
     /// Whether the torque is a feedback of the state.
     pub fn torque_uses_state(&self) -> bool {
         self.torque.uses_state()
@@ -275,7 +285,7 @@ pub(crate) const NON_FINITE: &str = "the state became non-finite (the motion ble
 impl<C: Borrow<Chain>, T: TorqueSource> ChainSystem<C, T> {
     /// The right-hand side of the general model (losses, a cart, a moving pivot).
     fn rhs_general(&mut self, t: f64, y: &[f64], dy: &mut [f64]) -> Result<()> {
-        let Self { chain, torque, ws, tau, drive, layout, state, form, slots, .. } = self;
+        let Self { chain, torque, ws, tau, drive, layout, state, form, slots, last_load, .. } = self;
         let chain: &Chain = (*chain).borrow();
         let (n, lay, slots) = (chain.n(), *layout, *slots);
         let active = lay.torque;
@@ -350,6 +360,7 @@ impl<C: Borrow<Chain>, T: TorqueSource> ChainSystem<C, T> {
         if let Some(i) = slots.dissipated {
             dy[i] = losses + chain.cart().map_or(0.0, |c| c.damping * v * v);
         }
+        *last_load = Load { cart_force: force, ..load };
         Ok(())
     }
 

@@ -5,7 +5,6 @@
 //! methods exactly, up to the implicit stages' convergence), so the Gauss methods'
 //! sensitivity to the initial `(theta, p)` is symplectic; dop853 controls the error of the
 //! chain's state only, so its columns follow the state's steps.
-use super::simulate::{Traced, Trajectory};
 use crate::dynamics::base::Drive;
 use crate::dynamics::general::Load;
 use crate::dynamics::sensitivity::{directions, Columns, Input};
@@ -13,6 +12,39 @@ use crate::dynamics::system::{singular, ChainSystem, Form, Layout, OdeSystem};
 use crate::dynamics::torque::TorqueSource;
 use crate::error::{Error, Result};
 use crate::model::Chain;
+
+/// What the run loop ([`super::simulate`]) needs of its system besides the right-hand side: the
+/// chain's form and layout (its leading `layout.dim()` values are the chain's state), and what
+/// rides along.
+pub(crate) trait Traced: OdeSystem {
+    fn form(&self) -> Form;
+    fn layout(&self) -> Layout;
+    /// The whole initial state from the chain's own `y` at t = 0.
+    fn start(&mut self, y: Vec<f64>) -> Result<Vec<f64>> {
+        Ok(y)
+    }
+    /// The sensitivities of the recorded rows (of `self.dim()` values) at times `t`.
+    fn sensitivities(&mut self, _rec: &[f64], _t: &[f64]) -> Result<Derivatives> {
+        Ok(Derivatives::default())
+    }
+}
+
+impl<T: TorqueSource> Traced for ChainSystem<&Chain, T> {
+    fn form(&self) -> Form {
+        ChainSystem::form(self)
+    }
+    fn layout(&self) -> Layout {
+        ChainSystem::layout(self)
+    }
+}
+
+/// A run's sensitivities, laid out as [`super::Trajectory::sensitivities`] says.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Derivatives {
+    pub derivatives: Vec<f64>,
+    pub canonical: Vec<f64>,
+    pub directions: usize,
+}
 
 pub(crate) struct Sensitive<'c, T> {
     chain: &'c Chain,
@@ -37,10 +69,6 @@ impl<'c, T: TorqueSource> Sensitive<'c, T> {
         }
         let cols = Columns::new(chain, sys.form(), directions(inputs, chain.n())?);
         Ok(Sensitive { chain, base: sys.layout().dim(), cols, sys })
-    }
-
-    pub fn columns(&self) -> &Columns {
-        &self.cols
     }
 
     fn load(&self, t: f64) -> Result<Load> {
@@ -92,7 +120,9 @@ impl<T: TorqueSource> OdeSystem for Sensitive<'_, T> {
         let b = self.base;
         let (dy_state, dy_cols) = dy.split_at_mut(b);
         self.sys.rhs(t, &y[..b], dy_state)?;
-        let load = self.load(t)?;
+        // The gravity and cart force the chain's own evaluation just used (a pivot given as a
+        // function is called once per evaluation).
+        let load = self.sys.last_load();
         let chain = self.chain;
         self.cols.rates(chain, &load, &y[..b], dy_state, &y[b..], dy_cols).map_err(|s| singular(t, y, s))
     }
@@ -124,20 +154,19 @@ impl<T: TorqueSource> Traced for Sensitive<'_, T> {
         Ok(y)
     }
 
-    fn sensitivities(&mut self, chain: &Chain, rec: &[f64], t: &[f64], tr: &mut Trajectory) -> Result<()> {
+    fn sensitivities(&mut self, rec: &[f64], t: &[f64]) -> Result<Derivatives> {
         let (d, b, k, m) = (self.dim(), self.base, self.cols.dirs.len(), self.cols.mech);
         let hamiltonian = self.sys.form() == Form::Hamiltonian;
-        tr.directions = k;
-        tr.sensitivities = vec![0.0; t.len() * m * k];
+        let mut out = Derivatives { derivatives: vec![0.0; t.len() * m * k], canonical: Vec::new(), directions: k };
         if hamiltonian {
-            tr.canonical = vec![0.0; t.len() * m * k];
+            out.canonical = vec![0.0; t.len() * m * k];
         }
         for (r, row) in rec.chunks(d).enumerate() {
             let load = self.load(t[r])?;
-            let out = &mut tr.sensitivities[r * m * k..(r + 1) * m * k];
-            self.cols.output(chain, &load, &row[..b], &row[b..], out).map_err(|s| singular(t[r], row, s))?;
+            let rates = &mut out.derivatives[r * m * k..(r + 1) * m * k];
+            self.cols.output(self.chain, &load, &row[..b], &row[b..], rates).map_err(|s| singular(t[r], row, s))?;
             if hamiltonian {
-                let raw = &mut tr.canonical[r * m * k..(r + 1) * m * k];
+                let raw = &mut out.canonical[r * m * k..(r + 1) * m * k];
                 for c in 0..k {
                     for i in 0..m {
                         raw[i * k + c] = row[b + c * m + i];
@@ -145,6 +174,6 @@ impl<T: TorqueSource> Traced for Sensitive<'_, T> {
                 }
             }
         }
-        Ok(())
+        Ok(out)
     }
 }

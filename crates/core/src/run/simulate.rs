@@ -7,10 +7,10 @@ use serde::{Deserialize, Serialize};
 use super::driver::{fixed_steps, Config, Run, State};
 use super::energy::EnergyBalance;
 use super::events::{EventSpec, Hit, Tracker};
-use super::sensitivity::Sensitive;
+use super::sensitivity::{Sensitive, Traced};
 use crate::dynamics::base::Drive;
 use crate::dynamics::sensitivity::Input;
-use crate::dynamics::system::{check_finite_state, ChainSystem, Form, Layout, OdeSystem};
+use crate::dynamics::system::{check_finite_state, ChainSystem, Form, Layout};
 use crate::dynamics::torque::TorqueSource;
 use crate::dynamics::Workspace;
 use crate::error::{Error, Result};
@@ -210,10 +210,22 @@ impl Settings {
 /// Steps (all trajectories together) below which a fixed-step run counts as short.
 const SHORT_STEPS: f64 = 4096.0;
 
-/// Refuse, before allocating, an output of `rows` rows (all trajectories) that would not fit.
-fn check_output_size(rows: f64, n: usize) -> Result<()> {
+/// Bytes per output row of a run of `chain` with `settings`: [`crate::memory::row_bytes`], and
+/// with sensitivities their columns, held three times at once (the recorded rows, their copy
+/// while the run is finished, the output) and four in the Hamiltonian form (its own columns too).
+fn output_row_bytes(chain: &Chain, settings: &Settings) -> f64 {
+    let n = chain.n();
+    let k: usize = settings.sensitivities.iter().map(|i| i.len(n)).sum();
+    let mech = 2 * n + if chain.cart().is_some() { 2 } else { 0 };
+    let copies = if settings.resolved_form().ok() == Some(Form::Hamiltonian) { 4.0 } else { 3.0 };
+    crate::memory::row_bytes(n) + (k * mech) as f64 * 8.0 * copies
+}
+
+/// Refuse, before allocating, an output of `rows` rows (all trajectories) of `row` bytes each
+/// ([`output_row_bytes`]) that would not fit.
+fn check_output_size(rows: f64, n: usize, row: f64) -> Result<()> {
     crate::memory::check(
-        rows * crate::memory::row_bytes(n),
+        rows * row,
         &format!("storing {rows:.0} output points of {n} links"),
         "ask for fewer with t_eval (e.g. 10^4 points), a larger dt or fewer trajectories",
     )
@@ -244,7 +256,8 @@ fn check_fixed_steps(settings: &Settings, t_end: f64) -> Result<()> {
 /// 256, ... steps), refuse at once a run that clearly cannot reach `t_end` within `max_steps`, or
 /// whose every-step output clearly would not fit, instead of after minutes of work. "Clearly":
 /// four times over, as the pace of the first steps can differ from the rest.
-fn check_pace(settings: &Settings, attempts: u64, t: f64, t_end: f64, every_step: bool, n: usize) -> Result<()> {
+#[allow(clippy::too_many_arguments)]
+fn check_pace(settings: &Settings, attempts: u64, t: f64, t_end: f64, every_step: bool, n: usize, row: f64) -> Result<()> {
     if !(t > 0.0) {
         return Ok(());
     }
@@ -260,7 +273,7 @@ fn check_pace(settings: &Settings, attempts: u64, t: f64, t_end: f64, every_step
     if every_step {
         let rows = total / 4.0;
         crate::memory::check(
-            rows * crate::memory::row_bytes(n),
+            rows * row,
             &format!("storing every step, about {rows:.1e} output points of {n} links to t_end = {t_end:e} at the pace so far"),
             "ask for fewer with t_eval (e.g. 10^4 points), or a shorter t_end",
         )?;
@@ -420,7 +433,7 @@ pub fn simulate_from<T: TorqueSource>(
     }
     check_cart0(chain, settings)?;
     let rows = settings.validate(t_end)?;
-    check_output_size(rows as f64, chain.n())?;
+    check_output_size(rows as f64, chain.n(), output_row_bytes(chain, settings))?;
     check_fixed_steps(settings, t_end)?;
     let form = settings.resolved_form()?;
     let n = chain.n();
@@ -442,36 +455,7 @@ pub fn simulate_from<T: TorqueSource>(
         return Err(Error::input("checkpoints cannot be combined with sensitivities (resume the run without them)"));
     }
     let sys = Sensitive::new(chain, sys, &settings.sensitivities, &settings.drive)?;
-    crate::memory::check(
-        rows as f64 * sys.columns().len() as f64 * 8.0 * if form == Form::Hamiltonian { 2.0 } else { 1.0 },
-        &format!("storing {rows} output points of {} sensitivity directions", sys.columns().dirs.len()),
-        "ask for fewer output times (t_eval) or fewer sensitivities",
-    )?;
     by_method(chain, start, t_end, settings, sys, monitor, checkpoints, rows)
-}
-
-/// What the run loop needs of its system besides the right-hand side: the chain's form and
-/// layout (its leading `layout.dim()` values are the chain's state), and what rides along.
-pub(crate) trait Traced: OdeSystem {
-    fn form(&self) -> Form;
-    fn layout(&self) -> Layout;
-    /// The whole initial state from the chain's own `y` at t = 0.
-    fn start(&mut self, y: Vec<f64>) -> Result<Vec<f64>> {
-        Ok(y)
-    }
-    /// Fill the sensitivities of `tr` from the recorded rows (of `self.dim()` values).
-    fn sensitivities(&mut self, _chain: &Chain, _rec: &[f64], _t: &[f64], _tr: &mut Trajectory) -> Result<()> {
-        Ok(())
-    }
-}
-
-impl<T: TorqueSource> Traced for ChainSystem<&Chain, T> {
-    fn form(&self) -> Form {
-        ChainSystem::form(self)
-    }
-    fn layout(&self) -> Layout {
-        ChainSystem::layout(self)
-    }
 }
 
 /// [`drive`] with the method's own integrator type: one monomorphised loop per method, not a
@@ -604,13 +588,13 @@ fn drive<S: Traced, I: Integrator>(
                 rec.push(t1, run.y());
                 if rec.t.len() == rec.t.capacity() {
                     // The next row doubles the buffers: check that they fit before they grow.
-                    check_output_size(2.0 * rec.t.len() as f64, n)?;
+                    check_output_size(2.0 * rec.t.len() as f64, n, output_row_bytes(chain, settings))?;
                 }
             }
         }
         let steps = run.state().steps;
         if settings.method.adaptive() && steps.is_power_of_two() && steps >= MONITOR_EVERY {
-            check_pace(settings, steps + run.state().rejected, t1, t_end, t_eval.is_none(), n)?;
+            check_pace(settings, steps + run.state().rejected, t1, t_end, t_eval.is_none(), n, output_row_bytes(chain, settings))?;
         }
         after_step(steps, t1, &mut *monitor, &mut checkpoints, || Checkpoint {
             run: run.save(),
@@ -637,8 +621,8 @@ fn drive<S: Traced, I: Integrator>(
     let rows_y = std::mem::take(&mut rec.y);
     let y = rows_y.chunks(d).flat_map(|r| &r[..base]).copied().collect();
     let mut tr = finish(chain, form, layout, &settings.drive, &initial[..base], Recorder { y, ..rec }, hits, stats)?;
-    let t = tr.t.clone();
-    run.system_mut().sensitivities(chain, &rows_y, &t, &mut tr)?;
+    let out = run.system_mut().sensitivities(&rows_y, &tr.t)?;
+    (tr.sensitivities, tr.canonical, tr.directions) = (out.derivatives, out.canonical, out.directions);
     Ok(tr)
 }
 
@@ -927,7 +911,7 @@ pub fn simulate_batch<T: TorqueSource + Clone + Send + Sync>(
         ));
     }
     let rows = settings.validate(t_end)?;
-    check_output_size(rows as f64 * b as f64, n)?;
+    check_output_size(rows as f64 * b as f64, n, output_row_bytes(chain, settings))?;
     check_fixed_steps(settings, t_end)?;
     (0..b)
         .into_par_iter()
