@@ -112,3 +112,18 @@ def test_a_python_condition_that_raises_or_returns_junk():
         mp.simulate(DOUBLE, [1.0, 0.5], [0, 0], 1.0, events=[mp.Event(lambda t, th, om: "x")])
     with pytest.raises(mp.InputError, match="runs in single runs only"):
         mp.simulate(DOUBLE, [[1.0, 0.5]], [[0, 0]], 1.0, t_eval=[1.0], events=[mp.Event(lambda t, th, om: t)])
+
+
+def test_a_batch_refuses_a_terminal_event_and_records_a_non_terminal_one():
+    # Each trajectory would stop at its own time: the batch's (B, T, N) arrays cannot hold that.
+    chain = mp.Chain([1.0, 1.0], [1.0, 1.0])
+    th0 = np.array([[2.5, 2.0], [0.1, 0.1]])
+    with pytest.raises(mp.InputError, match=r"^a terminal event \(Flip\(terminal=True\), mp.Flip's default\) "
+                                            r"would stop each trajectory of a batch at its own time"):
+        mp.simulate(chain, th0, np.zeros_like(th0), 10.0, method="rk4", dt=0.01, t_eval=np.linspace(0, 10, 11),
+                    events=[mp.Flip()])
+    sol = mp.simulate(chain, th0, np.zeros_like(th0), 10.0, method="rk4", dt=0.01, t_eval=np.linspace(0, 10, 11),
+                      events=[mp.Flip(terminal=False)])
+    one = mp.simulate(chain, th0[0], [0.0, 0.0], 10.0, method="rk4", dt=0.01, t_eval=np.linspace(0, 10, 11),
+                      events=[mp.Flip(terminal=False)])
+    assert sol.theta.shape == (2, 11, 2) and len(sol.events[0][0].t) == len(one.events[0].t) > 0

@@ -434,6 +434,10 @@ def simulate(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: 
         if isinstance(e, Event) and batch_shape:
             raise InputError("a Python event function (mp.Event) runs in single runs only; "
                              "use mp.Flip or mp.Crossing for batches")
+        if e.terminal and batch_shape:
+            raise InputError(f"a terminal event ({type(e).__name__}(terminal=True), mp.Flip's default) would stop "
+                             "each trajectory of a batch at its own time, which the batch's arrays cannot hold: "
+                             "give terminal=False (the crossings are still recorded) or run the trajectories one by one")
     event_specs = [e._spec(chain.n) for e in events]
     pivot_spec, force_spec = normalise_pivot(pivot), normalise_force(cart_force)
     cart0 = [as_float(cart_x0, "cart_x0", finite=True), as_float(cart_v0, "cart_v0", finite=True)]
