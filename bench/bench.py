@@ -181,26 +181,52 @@ def bench_chains(mp, quick, repeats):
     return rows, fits
 
 
-# ----------------------------------------------------------------------------- (c) ensemble
+# ----------------------------------------------------------------------------- subprocess workloads
 
 
-def run_flip(quick, python):
-    script = BENCH / "bench_flip.py"
-    if not script.exists():
-        return {"status": "not run", "why": "bench/bench_flip.py does not exist yet"}
-    out_json, out_md = BUILD / "flip.json", BUILD / "flip.md"
+def run_script(stem, quick, python):
+    """Run bench/bench_<stem>.py (with --quick when asked) writing build/<stem>.json and .md:
+    the common part of the record, the process, and the two paths."""
+    script = BENCH / f"bench_{stem}.py"
+    out_json, out_md = BUILD / f"{stem}.json", BUILD / f"{stem}.md"
     for p in (out_json, out_md):
         p.unlink(missing_ok=True)
     cmd = [python, str(script), *(["--quick"] if quick else []), "--json", str(out_json),
            "--md", str(out_md)]
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True)
-    res = {"cmd": " ".join(["bench/bench_flip.py", *cmd[2:3 if quick else 2]]),
+    res = {"cmd": " ".join([f"bench/bench_{stem}.py", *cmd[2:3 if quick else 2]]),
            "seconds": time.perf_counter() - t0}
+    return res, proc, out_json, out_md
+
+
+def failure(proc):
+    """Why a workload's process failed: its exit code and the last lines it printed."""
+    tail = (proc.stderr or proc.stdout).strip().splitlines()[-5:]
+    return f"exit code {proc.returncode}: " + " / ".join(tail)
+
+
+def run_with_json(stem, quick, python):
+    """A workload whose JSON is its result ("partial" when it exited with an error after
+    writing it), with its Markdown section."""
+    res, proc, out_json, out_md = run_script(stem, quick, python)
+    if not out_json.exists():
+        return {**res, "status": "failed", "why": failure(proc)}
+    data = json.loads(out_json.read_text())
+    res.update(status="ok" if proc.returncode == 0 else "partial", data=data,
+               md=out_md.read_text() if out_md.exists() else "")
+    return res
+
+
+# ----------------------------------------------------------------------------- (c) ensemble
+
+
+def run_flip(quick, python):
+    if not (BENCH / "bench_flip.py").exists():
+        return {"status": "not run", "why": "bench/bench_flip.py does not exist yet"}
+    res, proc, out_json, out_md = run_script("flip", quick, python)
     if proc.returncode != 0 or not out_json.exists():
-        tail = (proc.stderr or proc.stdout).strip().splitlines()[-5:]
-        return {**res, "status": "failed", "why": f"exit code {proc.returncode}: "
-                + " / ".join(tail)}
+        return {**res, "status": "failed", "why": failure(proc)}
     data = json.loads(out_json.read_text())
     rows = data["rows"] if isinstance(data, dict) and "rows" in data else data
     res.update(status="ok", rows=rows,
@@ -212,24 +238,7 @@ def run_flip(quick, python):
 
 
 def run_model(quick, python):
-    script = BENCH / "bench_model.py"
-    out_json, out_md = BUILD / "model.json", BUILD / "model.md"
-    for p in (out_json, out_md):
-        p.unlink(missing_ok=True)
-    cmd = [python, str(script), *(["--quick"] if quick else []), "--json", str(out_json),
-           "--md", str(out_md)]
-    t0 = time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True)
-    res = {"cmd": " ".join(["bench/bench_model.py", *cmd[2:3 if quick else 2]]),
-           "seconds": time.perf_counter() - t0}
-    if not out_json.exists():
-        tail = (proc.stderr or proc.stdout).strip().splitlines()[-5:]
-        return {**res, "status": "failed", "why": f"exit code {proc.returncode}: "
-                + " / ".join(tail)}
-    data = json.loads(out_json.read_text())
-    res.update(status="ok" if proc.returncode == 0 else "partial", data=data,
-               md=out_md.read_text() if out_md.exists() else "")
-    return res
+    return run_with_json("model", quick, python)
 
 
 def model_summary(model):
@@ -274,20 +283,10 @@ def model_summary(model):
 
 
 def run_section(stem, title, quick, python):
-    """bench_<stem>.py as a subprocess: its JSON and its Markdown section (its own title)."""
-    script = BENCH / f"bench_{stem}.py"
-    out_json, out_md = BUILD / f"{stem}.json", BUILD / f"{stem}.md"
-    for p in (out_json, out_md):
-        p.unlink(missing_ok=True)
-    cmd = [python, str(script), *(["--quick"] if quick else []), "--json", str(out_json), "--md", str(out_md)]
-    t0 = time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True)
-    res = {"cmd": " ".join([f"bench/bench_{stem}.py", *cmd[2:3 if quick else 2]]),
-           "seconds": time.perf_counter() - t0}
+    """bench_<stem>.py as a subprocess: its Markdown section (its own title)."""
+    res, proc, _, out_md = run_script(stem, quick, python)
     if not out_md.exists():
-        tail = (proc.stderr or proc.stdout).strip().splitlines()[-5:]
-        return {**res, "status": "failed", "md": f"## {title}\n\nNot run: exit code {proc.returncode}: "
-                + " / ".join(tail) + "\n"}
+        return {**res, "status": "failed", "md": f"## {title}\n\nNot run: {failure(proc)}\n"}
     res.update(status="ok" if proc.returncode == 0 else "failed", md=out_md.read_text())
     return res
 
@@ -297,24 +296,7 @@ def run_section(stem, title, quick, python):
 
 def run_envs(quick, python):
     """bench_envs.py as a subprocess: its JSON and its Markdown section."""
-    script = BENCH / "bench_envs.py"
-    out_json, out_md = BUILD / "envs.json", BUILD / "envs.md"
-    for p in (out_json, out_md):
-        p.unlink(missing_ok=True)
-    cmd = [python, str(script), *(["--quick"] if quick else []), "--json", str(out_json),
-           "--md", str(out_md)]
-    t0 = time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True)
-    res = {"cmd": " ".join(["bench/bench_envs.py", *cmd[2:3 if quick else 2]]),
-           "seconds": time.perf_counter() - t0}
-    if not out_json.exists():
-        tail = (proc.stderr or proc.stdout).strip().splitlines()[-5:]
-        return {**res, "status": "failed", "why": f"exit code {proc.returncode}: "
-                + " / ".join(tail)}
-    data = json.loads(out_json.read_text())
-    res.update(status="ok" if proc.returncode == 0 else "partial", data=data,
-               md=out_md.read_text() if out_md.exists() else "")
-    return res
+    return run_with_json("envs", quick, python)
 
 
 def envs_summary(envs):
