@@ -3,6 +3,8 @@ mp.indicator_map, their pictures (each indicator on its own scale, regular and c
 different colours) and `multipendulum atlas` (its outputs, `--indicator flip` as `fractal`, its
 refusals)."""
 import re
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,6 +13,8 @@ import multipendulum as mp
 from multipendulum.cli import main
 from multipendulum.fractal import CMAP, INDICATOR_STYLES, LOG_FLOOR, plot_indicator_map
 from multipendulum.sweeps import open_indicator_map, sweep_indicator_map
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from pictures import pixel, render  # noqa: E402  (tests/pictures.py)
 
 DOUBLE = mp.Chain([1.0, 1.0], [1.0, 1.0])
 X = np.linspace(-2.8, 2.8, 8)
@@ -144,19 +148,6 @@ def test_a_map_too_large_to_gather_is_refused_before_any_task(monkeypatch):
 # plot_indicator_map
 
 
-def _render(fig):
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-
-    canvas = FigureCanvasAgg(fig)
-    canvas.draw()
-    return np.asarray(canvas.buffer_rgba())[..., :3].astype(float) / 255
-
-
-def _pixel(fig, rgb, x_deg, y_deg):
-    px, py = fig.axes[0].transData.transform((x_deg, y_deg))
-    return rgb[int(round(rgb.shape[0] - py)), int(round(px))]
-
-
 @pytest.fixture(scope="module")
 def megno_map():
     # theta_1 = theta_2 along the diagonal: near rest regular (MEGNO ~ 2 or below), high up chaotic.
@@ -172,11 +163,11 @@ def test_regular_and_chaotic_cells_are_drawn_in_the_colours_their_values_say(meg
     regular, chaotic = (0, 0), (7, 7)
     assert m.values[regular] < 2.5 < 4.0 < m.values[chaotic]
     fig = plot_indicator_map(m, chain=DOUBLE, dpi=100)
-    rgb = _render(fig)
+    rgb = render(fig)
     deg = np.degrees(m.x)
     colours = {}
     for name, (i, j) in (("regular", regular), ("chaotic", chaotic)):
-        colours[name] = _pixel(fig, rgb, deg[j], deg[i])
+        colours[name] = pixel(fig, rgb, deg[j], deg[i])
         want = matplotlib.colormaps[CMAP](Normalize(0.0, 8.0)(min(m.values[i, j], 8.0)))[:3]
         np.testing.assert_allclose(colours[name], want, atol=0.02)
     assert np.abs(colours["regular"] - colours["chaotic"]).sum() > 0.5

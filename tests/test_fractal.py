@@ -1,5 +1,6 @@
 """Flip-map pictures and `multipendulum fractal`: the energy bound drawn where the closed form
 puts it, each kind of pixel in its own colour, the command's outputs and its refusals."""
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -8,6 +9,8 @@ import pytest
 import multipendulum as mp
 from multipendulum.cli import main
 from multipendulum.fractal import BOUND_COLOR, CMAP, FORBIDDEN_COLOR, NEVER_COLOR, plot_flip_map
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from pictures import pixel, render  # noqa: E402  (tests/pictures.py)
 
 DOUBLE = mp.Chain([1.0, 1.0], [1.0, 1.0])
 RODS = mp.Chain.rods([1.0, 1.0], [1.0, 1.0])
@@ -67,19 +70,6 @@ def test_without_the_chain_the_bound_is_traced_from_the_mask(maps):
     assert np.max(np.abs(2 * np.cos(pts[:, 0]) + np.cos(pts[:, 1]) - 1)) < 2 * (GRID[1] - GRID[0]) * 2.3
 
 
-def _render(fig):
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-
-    canvas = FigureCanvasAgg(fig)
-    canvas.draw()
-    return np.asarray(canvas.buffer_rgba())[..., :3].astype(float) / 255
-
-
-def _pixel(fig, rgb, x_deg, y_deg):
-    px, py = fig.axes[0].transData.transform((x_deg, y_deg))
-    return rgb[int(round(rgb.shape[0] - py)), int(round(px))]
-
-
 def _block(mask):
     """Indices (i, j) of a cell whose 3 x 3 neighbourhood is all in mask (away from edges)."""
     inner = mask[1:-1, 1:-1].copy()
@@ -96,19 +86,19 @@ def test_each_kind_of_pixel_has_its_own_colour(maps):
 
     fm = maps["points"]
     fig = plot_flip_map(fm, chain=DOUBLE, dpi=100)
-    rgb = _render(fig)
+    rgb = render(fig)
     deg = np.degrees(GRID)
     flipped = np.isfinite(fm.times)
     never = ~flipped & fm.allowed
     # A flip: the colour map's colour for its time (log scale, t_max / 100 .. t_max).
     i, j = _block(flipped & (fm.times > 0.1))
     want = matplotlib.colormaps[CMAP](LogNorm(0.04, 4.0)(fm.times[i, j]))[:3]
-    np.testing.assert_allclose(_pixel(fig, rgb, deg[j], deg[i]), want, atol=0.02)
+    np.testing.assert_allclose(pixel(fig, rgb, deg[j], deg[i]), want, atol=0.02)
     # Could flip but did not: white.
     i, j = _block(never)
-    np.testing.assert_allclose(_pixel(fig, rgb, deg[j], deg[i]), to_rgb(NEVER_COLOR), atol=0.02)
+    np.testing.assert_allclose(pixel(fig, rgb, deg[j], deg[i]), to_rgb(NEVER_COLOR), atol=0.02)
     # Forbidden by energy: the grey (or its hatching), never white and never a colour-map colour.
-    samples = np.array([_pixel(fig, rgb, x, y) for x in (-20, -10, 0, 10, 20) for y in (-40, 0, 40)])
+    samples = np.array([pixel(fig, rgb, x, y) for x in (-20, -10, 0, 10, 20) for y in (-40, 0, 40)])
     grey = np.isclose(samples, to_rgb(FORBIDDEN_COLOR), atol=0.03).all(axis=1)
     assert grey.mean() > 0.5
     assert np.all(np.ptp(samples, axis=1) < 0.03)  # neutral: equal red, green and blue
