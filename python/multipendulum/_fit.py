@@ -102,7 +102,7 @@ def _kind(chain: Chain) -> str:
     return "general"
 
 
-def _selection(params: Params, n: int) -> List[Tuple[str, int]]:
+def _selection(params: Params, chain: Chain) -> List[Tuple[str, int]]:
     """``(name, index)`` of every value to fit, checked."""
     if isinstance(params, str):
         params = (params,)
@@ -116,7 +116,8 @@ def _selection(params: Params, n: int) -> List[Tuple[str, int]]:
     for name, idx in items:
         if name not in PARAMETERS:
             raise InputError(f"cannot fit {name!r}: the parameters are {', '.join(PARAMETERS)}")
-        size = 1 if name == "g" else n
+        # The initial state has N entries; a parameter as many as the chain holds (g: one).
+        size = chain.n if name in _INITIAL else int(np.size(getattr(chain, name)))
         if idx is None:
             chosen = list(range(size))
         else:
@@ -225,7 +226,7 @@ def fit(chain_guess: Chain, t: npt.ArrayLike, theta_measured: npt.ArrayLike, par
         raise InputError("theta_measured must be finite (drop the missing samples and their times)")
     if times.size < 2 or not np.all(np.isfinite(times)) or times[0] < 0 or np.any(np.diff(times) <= 0):
         raise InputError("t must hold at least two ascending times, from t >= 0 (the run starts at t = 0)")
-    names = _selection(params, n)
+    names = _selection(params, chain_guess)
     count = measured.size
     if count < len(names):
         raise InputError(f"a fit of {len(names)} values needs at least as many measurements, got {count} "

@@ -494,13 +494,13 @@ def _sensitivity_names(sensitivities: Optional[Sequence[str]]) -> List[str]:
     return list(sensitivities)
 
 
-def _split_sensitivities(flat: npt.NDArray[np.float64], names: Sequence[str], n: int, states: int,
+def _split_sensitivities(flat: npt.NDArray[np.float64], names: Sequence[str], sizes: Sequence[int], states: int,
                          shape: Tuple[int, ...]) -> Dict[str, npt.NDArray[np.float64]]:
-    """The core's (..., T, S, K) derivatives split by input, in the order asked."""
-    counts = [1 if name == "g" else n for name in names]
-    whole = flat.reshape(shape + (states, sum(counts)))
+    """The core's (..., T, S, K) derivatives split by input (``sizes``: each one's directions, as
+    the core counts them), in the order asked."""
+    whole = flat.reshape(shape + (states, sum(sizes)))
     out, start = {}, 0
-    for name, k in zip(names, counts):
+    for name, k in zip(names, sizes):
         out[name] = whole[..., start:start + k]
         start += k
     return out
@@ -549,9 +549,10 @@ def _run(chain: Chain, th0: npt.NDArray[Any], om0: npt.NDArray[Any], run: Dict[s
     sol._joint, sol._rtol = run["joint"], run["rtol"]
     if sensitivities:
         shape, states = batch_shape + (sol.t.size,), 2 * chain.n + (2 if chain.cart is not None else 0)
-        sol.sensitivities = _split_sensitivities(data["sensitivities"], sensitivities, chain.n, states, shape)
+        sizes = data["sensitivity_sizes"]
+        sol.sensitivities = _split_sensitivities(data["sensitivities"], sensitivities, sizes, states, shape)
         if data["canonical"].size:
-            sol.canonical_sensitivities = _split_sensitivities(data["canonical"], sensitivities, chain.n, states, shape)
+            sol.canonical_sensitivities = _split_sensitivities(data["canonical"], sensitivities, sizes, states, shape)
     sol._initial = (np.asarray(th0, dtype=np.float64), np.asarray(om0, dtype=np.float64))
     if spec is not None and spec[0] != "callable":
         sol._torque = torque_object(spec, chain.n)

@@ -26,7 +26,7 @@ struct Trajectories(Vec<core::Trajectory>);
 
 /// The run's outputs as a dict of flat arrays (Python reshapes): t, theta, omega, p, energy,
 /// work, and the stats.
-fn trajectories_out<'py>(py: Python<'py>, trs: Trajectories) -> PyResult<Bound<'py, pyo3::types::PyDict>> {
+fn trajectories_out<'py>(py: Python<'py>, trs: Trajectories, sizes: Vec<usize>) -> PyResult<Bound<'py, pyo3::types::PyDict>> {
     use pyo3::types::PyDict;
     let d = PyDict::new(py);
     let mut trs = trs.0;
@@ -65,6 +65,8 @@ fn trajectories_out<'py>(py: Python<'py>, trs: Trajectories) -> PyResult<Bound<'
     d.set_item("pivot", vec_out(py, take(&mut trs, |t| std::mem::take(&mut t.pivot))))?;
     // Sensitivities: (T, S, K) per trajectory, flat (empty without them).
     d.set_item("directions", trs[0].directions)?;
+    // Each input's number of directions, in the order asked (the core's Input::len).
+    d.set_item("sensitivity_sizes", sizes)?;
     d.set_item("sensitivities", vec_out(py, take(&mut trs, |t| std::mem::take(&mut t.sensitivities))))?;
     d.set_item("canonical", vec_out(py, take(&mut trs, |t| std::mem::take(&mut t.canonical))))?;
     let events = pyo3::types::PyList::empty(py);
@@ -314,7 +316,7 @@ fn simulate<'py>(
         }
     };
     let trs = result.map_err(fail)?;
-    trajectories_out(py, trs)
+    trajectories_out(py, trs, settings.sensitivities.iter().map(|i| i.len(n)).collect())
 }
 
 /// `(t, steps)` of serialised checkpoint bytes, or an InputError saying why they cannot be read.

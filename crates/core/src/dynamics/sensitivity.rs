@@ -317,13 +317,12 @@ impl Chain {
         let Scratch { field, gravity, below, proj, kin, dp, dpdot, .. } = sc;
         dp.fill(0.0);
         dpdot.fill(0.0);
-        let dpx = if param == Param::Gravity { 0.0 } else { self.field_derivative(field, below, proj, param, dp) };
+        // (The rates' field has no gravity, `d B / d g = 0`: g moves only the potential's terms.)
+        let dpx = self.field_derivative(field, below, proj, param, dp);
         if let Param::Inertia(j) = param {
             dp[j] += omega[j];
         }
-        if param != Param::Gravity {
-            self.field_derivative(field, below, kin, param, dpdot);
-        }
+        self.field_derivative(field, below, kin, param, dpdot);
         self.field_derivative(gravity, below, proj, param, dpdot);
         self.loss_derivative(omega, param, dpdot);
         dpx
