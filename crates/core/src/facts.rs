@@ -62,7 +62,12 @@ pub fn default_method() -> &'static str {
     defaults::METHOD.name()
 }
 
-/// The limits the core enforces on input.
+/// The most links the browser's viewer draws and runs at an interactive rate (the page, the
+/// notebook widget and its playback of a solution refuse longer chains and say so).
+pub const VIEWER_MAX_LINKS: usize = 100;
+
+/// The limits on input: the core enforces them, and every layer reads them from here (the
+/// viewer's too).
 pub fn limits() -> Vec<Fact> {
     vec![
         ("min_rtol", defaults::MIN_RTOL, "the smallest rtol accepted"),
@@ -70,6 +75,7 @@ pub fn limits() -> Vec<Fact> {
         ("max_angle", crate::model::MAX_STATE, "the largest |angle| (rad) a state may hold"),
         ("max_output_bytes", crate::memory::MAX_OUTPUT_BYTES, "the most memory an output may take"),
         ("max_chaos_steps", crate::chaos::MAX_STEPS, "the most steps per trajectory of the chaos kernels"),
+        ("viewer_max_links", VIEWER_MAX_LINKS as f64, "the most links the browser viewer and the notebook widget show"),
     ]
 }
 

@@ -10,12 +10,17 @@
 //!   the numbers: the core checks them when the simulation is built.
 //! - a simulation: `mp_sim_new(..)` returns a handle (null on bad input), the other `mp_sim_*`
 //!   functions take it, `mp_sim_free` releases it. It wraps a core [`Stepper`].
+//! - the dragged base: a setup made with `mp_setup_draggable` lets `mp_sim_follow` pull the
+//!   pivot (or the cart) towards the pointer while the run goes on, with bounded acceleration;
+//!   `mp_sim_release` lets go; `mp_sim_base_motion` reports the base's motion.
+//! - flip maps: `mp_first_flips` runs the core's lane kernel over many double pendulums.
 //! - errors: a call that fails returns null or a negative status, and `mp_error_ptr` /
 //!   `mp_error_len` give the core's message (`lengths[1] must be > 0 and finite, got -1`).
 //!
 //! Pointers and lengths come from the wrapper, which allocates every buffer it passes.
 use std::alloc::{alloc_zeroed, dealloc, Layout};
 use std::cell::RefCell;
+use std::sync::Arc;
 
 use multipendulum_core::model::FRICTION_VELOCITY;
 use multipendulum_core::{
@@ -200,6 +205,8 @@ pub struct Setup {
     pivot: [Option<Signal>; 2],
     torque: Option<(bool, Signal)>,
     force: Option<Signal>,
+    /// Whether the base can be dragged (`mp_sim_follow`) during the run.
+    draggable: bool,
 }
 
 impl Default for Setup {
@@ -213,6 +220,7 @@ impl Default for Setup {
             pivot: [None, None],
             torque: None,
             force: None,
+            draggable: false,
         }
     }
 }
@@ -268,10 +276,21 @@ impl Setup {
                 Some(Pivot { x: axis(x, "x")?, y: axis(y, "y")? })
             }
         };
-        let force = match &self.force {
+        let mut force = match &self.force {
             Some(s) => Some(Force::Builtin(s.builtin(1).map_err(about("cart_force"))?)),
             None => None,
         };
+        let mut pivot = pivot;
+        if self.draggable {
+            // What the state holds is fixed when the run starts: a draggable base starts with a
+            // pivot that stays at the origin (an approach at rest) or a cart force of zero.
+            if chain.cart().is_some() {
+                force = force.or_else(|| Some(Force::Builtin(Builtin::Constant(vec![0.0]))));
+            } else if pivot.is_none() {
+                let rest = Arc::new(Dragged([Approach::towards(0.0, 0.0, 0.0, 0.0); 2]));
+                pivot = Some(Pivot { x: Axis::Function(rest.clone()), y: Axis::Function(Arc::new(DraggedY(rest))) });
+            }
+        }
         let torque = match &self.torque {
             None => Torque::Generalized(Builtin::None),
             Some((false, s)) => Torque::Generalized(s.builtin(n).map_err(about("torque"))?),
@@ -308,6 +327,17 @@ pub unsafe extern "C" fn mp_setup_losses(setup: *mut Setup, n: usize, damping: *
     s.damping = optional(damping, n).map(<[f64]>::to_vec);
     s.friction = optional(friction, n).map(<[f64]>::to_vec);
     s.friction_velocity = friction_velocity;
+}
+
+/// Let the base be dragged during the run (`mp_sim_follow`): without a prescribed motion the
+/// pivot then stays at the origin through the moving-pivot equations (and a cart gets a cart
+/// force of zero), so that pulling it later changes no part of the run's state.
+///
+/// # Safety
+/// `setup` is live.
+#[no_mangle]
+pub unsafe extern "C" fn mp_setup_draggable(setup: *mut Setup) {
+    (*setup).draggable = true;
 }
 
 /// A cart carrying the pivot: its mass (kg), viscous damping (N s/m), initial position (m) and
@@ -382,6 +412,8 @@ pub unsafe extern "C" fn mp_setup_cart_force(setup: *mut Setup, kind: i32, rows:
 pub struct Sim {
     stepper: Stepper<Torque>,
     cart: bool,
+    /// The drive the run was built with (a dragged cart gets its force back from it).
+    drive: Drive,
 }
 
 unsafe fn slice<'a>(ptr: *const f64, n: usize) -> &'a [f64] {
@@ -444,7 +476,8 @@ pub unsafe extern "C" fn mp_sim_new(
         let dt = if method.adaptive() && dt == 0.0 { None } else { Some(dt) };
         let settings = Settings { method, dt, rtol, atol, drive, cart0: extra.cart0, ..Settings::default() };
         let stepper = Stepper::new(chain, slice(theta0, n), slice(omega0, n), &settings, torque)?;
-        Ok(Sim { stepper, cart })
+        let drive = stepper.drive().clone();
+        Ok(Sim { stepper, cart, drive })
     };
     match build() {
         Ok(sim) => Box::into_raw(Box::new(sim)),
@@ -621,6 +654,249 @@ pub unsafe extern "C" fn mp_sim_base(sim: *mut Sim, out: *mut f64) {
     let sim = &mut *sim;
     let base = if sim.cart { [sim.stepper.cart().0, 0.0] } else { sim.stepper.pivot() };
     std::slice::from_raw_parts_mut(out, 2).copy_from_slice(&base);
+}
+
+// ---- The dragged base ----------------------------------------------------------------------
+
+/// How the base follows the pointer: a critically damped spring of this natural rate (rad/s),
+/// from the base's position and velocity when the pointer moves.
+pub const FOLLOW_RATE: f64 = 12.0;
+/// The most acceleration (m/s^2) of a dragged base: the spring's target is brought no further
+/// from the base than keeps the whole approach within it (see [`Approach::towards`]).
+pub const FOLLOW_ACCELERATION: f64 = 40.0;
+
+/// One axis of the dragged pivot: from `(x0, v0)` at `t0` towards `target`, critically damped,
+/// `x'' = w^2 (target - x) - 2 w x'`, in closed form: `x = target + (c1 + c2 s) e^{-w s}`,
+/// `s = t - t0`, `c1 = x0 - target`, `c2 = v0 + w c1`. Position, velocity and acceleration are
+/// exact derivatives of one another (the core's moving pivot needs all three).
+#[derive(Debug, Clone, Copy)]
+struct Approach {
+    t0: f64,
+    x0: f64,
+    v0: f64,
+    target: f64,
+    rate: f64,
+}
+
+/// The largest |acceleration| of the approach from `(x0, v0)` towards `target` over all later
+/// times. With `u = w s` the acceleration is `e^{-u} (a0 - b u)`, `a0 = w^2 (target - x0) -
+/// 2 w v0`, `b = a0 + w v0`: its extremes are at `u = 0` and, when positive, at
+/// `u* = 1 + a0 / b`, where it is `-b e^{-u*}`.
+fn peak(w: f64, x0: f64, v0: f64, target: f64) -> f64 {
+    let a0 = w * w * (target - x0) - 2.0 * w * v0;
+    let b = a0 + w * v0;
+    let u = 1.0 + a0 / b;
+    if b != 0.0 && u > 0.0 {
+        a0.abs().max(b.abs() * (-u).exp())
+    } else {
+        a0.abs()
+    }
+}
+
+impl Approach {
+    /// From `(x0, v0)` towards `target`, the target brought towards the coasting one (where
+    /// the spring starts without acceleration, `x0 + 2 v0 / w`, whose peak is `w |v0| / e`)
+    /// until the whole approach stays within [`FOLLOW_ACCELERATION`]. Only a base already
+    /// faster than `e A / w` (about 9 m/s) cannot be held to it: it coasts.
+    fn towards(t0: f64, x0: f64, v0: f64, target: f64) -> Self {
+        let (w, limit) = (FOLLOW_RATE, FOLLOW_ACCELERATION);
+        let coast = x0 + 2.0 * v0 / w;
+        let within = |r: f64| peak(w, x0, v0, r) <= limit;
+        let target = if within(target) || !within(coast) {
+            if within(target) { target } else { coast }
+        } else {
+            // Bisection between an acceptable target and one that is not.
+            let (mut ok, mut bad) = (coast, target);
+            for _ in 0..64 {
+                let mid = 0.5 * (ok + bad);
+                if within(mid) { ok = mid } else { bad = mid }
+            }
+            ok
+        };
+        Approach { t0, x0, v0, target, rate: w }
+    }
+
+    fn eval(&self, t: f64) -> [f64; 3] {
+        let (w, s) = (self.rate, t - self.t0);
+        let c1 = self.x0 - self.target;
+        let c2 = self.v0 + w * c1;
+        let e = (-w * s).exp();
+        // `target + (c1 + c2 s) e` written from `x0`, so that it starts exactly there.
+        let position = self.x0 + c1 * (-w * s).exp_m1() + c2 * s * e;
+        [position, (self.v0 - w * c2 * s) * e, (w * w * c2 * s - w * c2 - w * self.v0) * e]
+    }
+}
+
+#[derive(Debug)]
+struct Dragged([Approach; 2]);
+
+impl multipendulum_core::AxisFn for Dragged {
+    fn eval(&self, t: f64) -> multipendulum_core::Result<[f64; 3]> {
+        Ok(self.0[0].eval(t))
+    }
+}
+
+/// The y axis of a dragged pivot (the x axis is [`Dragged`] itself).
+#[derive(Debug)]
+struct DraggedY(Arc<Dragged>);
+
+impl multipendulum_core::AxisFn for DraggedY {
+    fn eval(&self, t: f64) -> multipendulum_core::Result<[f64; 3]> {
+        Ok(self.0 .0[1].eval(t))
+    }
+}
+
+/// The dragged cart: a horizontal force pulling it towards `target` as a critically damped
+/// spring would pull the whole chain's mass `m` (cart and links),
+/// `F = m (w^2 (target - x) - 2 w v)`, held within `m A` ([`FOLLOW_ACCELERATION`]).
+#[derive(Debug)]
+struct Pull {
+    target: f64,
+    mass: f64,
+}
+
+impl multipendulum_core::ForceFn for Pull {
+    fn eval(&self, _t: f64, state: &[f64]) -> multipendulum_core::Result<f64> {
+        // The state is (x, theta_1..theta_N, v, omega_1..omega_N).
+        let (x, v) = (state[0], state[state.len() / 2]);
+        let w = FOLLOW_RATE;
+        let a = (w * w * (self.target - x) - 2.0 * w * v).clamp(-FOLLOW_ACCELERATION, FOLLOW_ACCELERATION);
+        Ok(self.mass * a)
+    }
+}
+
+/// Pull the base towards `(x, y)` (m, lab frame) from now on: the pivot follows it through
+/// the core's moving-pivot physics as [`Approach`] says (its position and velocity continue,
+/// so the energy balance stays exact), or the cart is pulled along the rail by [`Pull`] (`y`
+/// unused; the chain's own cart force is set aside until `mp_sim_release`). Called as the
+/// pointer moves; a negative status if the run has failed or the target is not finite.
+///
+/// # Safety
+/// `sim` is a live handle.
+#[no_mangle]
+pub unsafe extern "C" fn mp_sim_follow(sim: *mut Sim, x: f64, y: f64) -> i32 {
+    let sim = &mut *sim;
+    let mut follow = || -> Result<(), Error> {
+        if !(x.is_finite() && y.is_finite()) {
+            return Err(Error::input(format!("the pointer's target must be finite, got ({x}, {y})")));
+        }
+        let drive = if sim.cart {
+            let chain = sim.stepper.chain();
+            let mass = chain.cart().map_or(0.0, |c| c.mass) + chain.total_mass();
+            Drive { pivot: None, force: Some(Force::Function(Arc::new(Pull { target: x, mass }))) }
+        } else {
+            let (t, m) = (sim.stepper.t(), sim.stepper.pivot_motion()?);
+            let axes = [0, 1].map(|k| Approach::towards(t, m.pos[k], m.vel[k], [x, y][k]));
+            let dragged = Arc::new(Dragged(axes));
+            Drive {
+                pivot: Some(Pivot { x: Axis::Function(dragged.clone()), y: Axis::Function(Arc::new(DraggedY(dragged))) }),
+                force: None,
+            }
+        };
+        sim.stepper.set_drive(drive)
+    };
+    match follow() {
+        Ok(()) => DONE,
+        Err(e) => fail(&e),
+    }
+}
+
+/// The pointer let go: a cart gets its own force back; a dragged pivot settles where it was
+/// pulled (its spring keeps its target).
+///
+/// # Safety
+/// `sim` is a live handle.
+#[no_mangle]
+pub unsafe extern "C" fn mp_sim_release(sim: *mut Sim) -> i32 {
+    let sim = &mut *sim;
+    if !sim.cart {
+        return DONE;
+    }
+    match sim.stepper.set_drive(sim.drive.clone()) {
+        Ok(()) => DONE,
+        Err(e) => fail(&e),
+    }
+}
+
+/// The base's motion into `out` (6 values): position (m), velocity (m/s) and acceleration
+/// (m/s^2), x then y of each: the pivot's, or the cart's along the rail (its acceleration 0:
+/// the cart's is the integrator's, not a prescribed one).
+///
+/// # Safety
+/// `sim` is a live handle; `out` holds 6 f64.
+#[no_mangle]
+pub unsafe extern "C" fn mp_sim_base_motion(sim: *mut Sim, out: *mut f64) -> i32 {
+    let sim = &mut *sim;
+    let values = if sim.cart {
+        let (x, v) = sim.stepper.cart();
+        [x, 0.0, v, 0.0, 0.0, 0.0]
+    } else {
+        match sim.stepper.pivot_motion() {
+            Ok(m) => [m.pos[0], m.pos[1], m.vel[0], m.vel[1], m.acc[0], m.acc[1]],
+            Err(e) => return fail(&e),
+        }
+    };
+    std::slice::from_raw_parts_mut(out, 6).copy_from_slice(&values);
+    DONE
+}
+
+// ---- Flip maps ---------------------------------------------------------------------------------
+
+/// First-flip times of `b` undriven double pendulums (the core's lane kernel,
+/// `chaos::first_flips`): chain as in `mp_sim_new` (2 links; `rods`, `com`/`inertia` may be
+/// null), initial states `theta0`, `omega0` (`2 b` values each, row by row), rk4 at `dt` up to
+/// `t_max`, the flip of `link` (0 or 1; -1: either). `out` receives `b` times (+inf: none
+/// before `t_max`). A negative status on bad input.
+///
+/// # Safety
+/// Arrays hold what is said; `out` holds `b` f64.
+#[no_mangle]
+pub unsafe extern "C" fn mp_first_flips(
+    rods: i32,
+    lengths: *const f64,
+    masses: *const f64,
+    com: *const f64,
+    inertia: *const f64,
+    g: f64,
+    theta0: *const f64,
+    omega0: *const f64,
+    b: usize,
+    t_max: f64,
+    dt: f64,
+    link: i32,
+    out: *mut f64,
+) -> i32 {
+    let run = || -> Result<Vec<f64>, Error> {
+        let n = 2;
+        let (lengths, masses) = (slice(lengths, n), slice(masses, n));
+        let chain = if rods != 0 {
+            Chain::rods(lengths, masses, g)?
+        } else {
+            Chain::new(lengths, masses, optional(com, n), optional(inertia, n), g)?
+        };
+        let link = match link {
+            -1 => None,
+            k if k >= 0 => Some(k as usize),
+            k => return Err(Error::input(format!("link must be -1 (any) or a link index, got {k}"))),
+        };
+        multipendulum_core::chaos::first_flips(
+            &chain,
+            slice(theta0, n * b),
+            slice(omega0, n * b),
+            t_max,
+            dt,
+            link,
+            &Builtin::None,
+            &multipendulum_core::watch::Watch::new(),
+        )
+    };
+    match run() {
+        Ok(times) => {
+            std::slice::from_raw_parts_mut(out, b).copy_from_slice(&times);
+            DONE
+        }
+        Err(e) => fail(&e),
+    }
 }
 
 #[cfg(test)]
@@ -848,4 +1124,174 @@ mod tests {
             mp_setup_free(setup);
         }
     }
+
+    #[test]
+    fn the_dragged_pivots_approach_solves_its_spring_and_starts_within_the_bound() {
+        let w = FOLLOW_RATE;
+        for (x0, v0, target) in [(0.0, 0.0, 0.1), (0.3, -1.5, -0.2), (-1.0, 2.0, 50.0), (0.0, 0.0, -1e6)] {
+            let a = Approach::towards(1.5, x0, v0, target);
+            // Starts where the base is, at its velocity.
+            let [p, v, _] = a.eval(1.5);
+            assert!(p == x0 && v == v0, "{p} {v}");
+            // The target is the pointer's unless that would ask for more than the bound, and
+            // the whole approach stays within it (sampled finely, against the closed form).
+            let most = (0..4000).map(|k| a.eval(1.5 + k as f64 * 1e-3)[2].abs()).fold(0.0, f64::max);
+            assert!(most <= FOLLOW_ACCELERATION * (1.0 + 1e-9), "{most}");
+            assert!(most >= 0.99 * peak(w, x0, v0, a.target), "{most}");
+            let unclamped = peak(w, x0, v0, target) <= FOLLOW_ACCELERATION;
+            assert_eq!(a.target == target, unclamped, "{x0} {v0} {target}");
+            if !unclamped {
+                assert!(most > 0.999 * FOLLOW_ACCELERATION, "the target is pulled in only as far as needed: {most}");
+            }
+            for s in [0.0, 0.01, 0.1, 0.4, 2.0] {
+                let t = 1.5 + s;
+                let [p, v, acc] = a.eval(t);
+                // The spring's equation, and velocity and acceleration as the derivatives
+                // (central differences) of what comes before them.
+                let spring = w * w * (a.target - p) - 2.0 * w * v;
+                assert!((acc - spring).abs() <= 1e-9 * (1.0 + spring.abs()), "{acc} {spring}");
+                let h = 1e-6;
+                let (m, q) = (a.eval(t - h), a.eval(t + h));
+                assert!(((q[0] - m[0]) / (2.0 * h) - v).abs() <= 1e-6 * (1.0 + v.abs()), "velocity at {s}");
+                assert!(((q[1] - m[1]) / (2.0 * h) - acc).abs() <= 1e-5 * (1.0 + acc.abs()), "acceleration at {s}");
+            }
+            assert!((a.eval(100.0)[0] - a.target).abs() < 1e-9, "it settles on the target");
+        }
+    }
+
+    #[test]
+    fn a_pointer_jumping_anywhere_every_frame_keeps_the_pivot_within_the_bound() {
+        // Targets anywhere within 3 m each frame for 20 s (a tiny LCG: the test is its own).
+        let mut seed = 12345u64;
+        let mut jump = || {
+            seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            6.0 * ((seed >> 11) as f64 / (1u64 << 53) as f64) - 3.0
+        };
+        let (mut x, mut v, mut t) = (0.0, 0.0, 0.0);
+        let (mut most, mut fastest) = (0.0f64, 0.0f64);
+        for _ in 0..1200 {
+            let a = Approach::towards(t, x, v, jump());
+            for k in 1..=20 {
+                let [p, q, acc] = a.eval(t + k as f64 / 1200.0);
+                most = most.max(acc.abs());
+                (x, v) = (p, q);
+                fastest = fastest.max(v.abs());
+            }
+            t += 1.0 / 60.0;
+            let [p, q, _] = a.eval(t);
+            (x, v) = (p, q);
+        }
+        assert!(most <= FOLLOW_ACCELERATION * (1.0 + 1e-9) && most > 0.99 * FOLLOW_ACCELERATION, "{most}");
+        assert!(fastest < std::f64::consts::E * FOLLOW_ACCELERATION / FOLLOW_RATE, "it never has to coast: {fastest}");
+    }
+
+    unsafe fn motion(sim: *mut Sim) -> [f64; 6] {
+        let mut out = [0.0; 6];
+        assert_eq!(mp_sim_base_motion(sim, out.as_mut_ptr()), DONE);
+        out
+    }
+
+    #[test]
+    fn a_dragged_pivot_moves_smoothly_and_its_work_balances() {
+        unsafe {
+            let setup = mp_setup_new();
+            mp_setup_draggable(setup);
+            let sim = with(setup, "rk4", 0.001, &[0.2, 0.1]);
+            assert_eq!(motion(sim), [0.0; 6]);
+            // The pointer jumps far away and wanders, a target per frame of 1/60 s.
+            let (mut frame, mut fastest) = (0.0, 0.0f64);
+            for k in 0..240 {
+                let (x, y) = if k < 10 { (5.0, 5.0) } else { (0.5 * (k as f64 * 0.1).sin(), -0.2) };
+                let before = motion(sim);
+                assert_eq!(mp_sim_follow(sim, x, y), DONE, "{}", message());
+                let after = motion(sim);
+                assert_eq!(before[..4], after[..4], "position and velocity continue at a retarget");
+                frame += 1.0 / 60.0;
+                // The acceleration stays within the bound throughout, not only at retargets.
+                while mp_sim_t(sim) < frame - 1e-9 {
+                    assert_eq!(mp_sim_advance(sim, mp_sim_t(sim) + 0.002, 100_000), DONE);
+                    let m = motion(sim);
+                    assert!(m[4].abs().max(m[5].abs()) <= FOLLOW_ACCELERATION * (1.0 + 1e-9), "{m:?}");
+                    fastest = fastest.max(m[2].abs().max(m[3].abs()));
+                }
+            }
+            assert!(fastest < std::f64::consts::E * FOLLOW_ACCELERATION / FOLLOW_RATE, "{fastest}");
+            let [px, py, ..] = motion(sim);
+            assert!(px.abs() < 0.6 && (py + 0.2).abs() < 0.1, "the pivot followed the pointer: {px} {py}");
+            let t = terms(sim);
+            assert!(t[4].abs() > 1e-3, "the pivot did work: {}", t[4]);
+            assert!(t[7] < 1e-6, "the balance holds through the retargets: {}", t[7]);
+            assert_eq!([t[8], t[9]], [px, py]);
+            assert_eq!(mp_sim_release(sim), DONE);
+            assert_eq!(mp_sim_follow(sim, f64::NAN, 0.0), INPUT_ERROR);
+            assert_eq!(message(), "the pointer's target must be finite, got (NaN, 0)");
+            mp_sim_free(sim);
+        }
+    }
+
+    #[test]
+    fn a_dragged_cart_is_pulled_along_its_rail_and_gets_its_force_back() {
+        unsafe {
+            // Without a draggable setup the run's state has no room for a pull.
+            let setup = mp_setup_new();
+            mp_setup_cart(setup, 1.0, 0.0, 0.0, 0.0);
+            let sim = with(setup, "rk4", 0.001, &[0.0]);
+            assert_eq!(mp_sim_follow(sim, -1.0, 0.0), INPUT_ERROR);
+            assert!(message().starts_with("the new drive changes what the run's state holds"), "{}", message());
+            mp_sim_free(sim);
+
+            let setup = mp_setup_new();
+            mp_setup_cart(setup, 1.0, 0.0, 0.0, 0.0);
+            let force = [2.0];
+            assert_eq!(mp_setup_cart_force(setup, SIGNAL_CONSTANT, 0, force.as_ptr(), 1), DONE);
+            mp_setup_draggable(setup);
+            let sim = with(setup, "rk4", 0.001, &[0.0]);
+            assert_eq!(mp_sim_follow(sim, -1.0, 3.0), DONE, "{}", message());
+            let mut left = 0.0f64;
+            for k in 1..=180 {
+                assert_eq!(mp_sim_advance(sim, k as f64 / 60.0, 100_000), DONE);
+                left = left.min(terms(sim)[10]);
+            }
+            let t = terms(sim);
+            // Pulled to the pointer's x (against its own push of 2 N, set aside while dragged).
+            assert!(left < -0.8 && t[10] < -0.5 && t[9] == 0.0, "{left} {t:?}");
+            assert!(t[5] != 0.0 && t[7] < 1e-6, "the pull's work balances: {t:?}");
+            assert_eq!(mp_sim_release(sim), DONE);
+            // Its own force pushes it back to the right (the chain's mass is 2 kg: 1 m/s^2).
+            let v = t[11];
+            assert_eq!(mp_sim_advance(sim, 4.0, 100_000), DONE);
+            let later = terms(sim);
+            assert!(later[11] - v > 0.3, "{v} {later:?}");
+            mp_sim_free(sim);
+        }
+    }
+
+    #[test]
+    fn the_flip_map_call_is_the_cores_kernel_and_refuses_what_it_refuses() {
+        unsafe {
+            let (lengths, masses) = ([1.0, 1.0], [1.0, 1.0]);
+            let theta: Vec<f64> = (0..16).map(|k| 1.0 + 0.13 * k as f64).collect();
+            let omega = vec![0.0; 16];
+            let mut out = [0.0; 8];
+            let call = |link: i32, t_max: f64, out: &mut [f64; 8]| {
+                mp_first_flips(
+                    0, lengths.as_ptr(), masses.as_ptr(), std::ptr::null(), std::ptr::null(), 9.81, theta.as_ptr(),
+                    omega.as_ptr(), 8, t_max, 0.01, link, out.as_mut_ptr(),
+                )
+            };
+            assert_eq!(call(-1, 10.0, &mut out), DONE, "{}", message());
+            let chain = Chain::new(&lengths, &masses, None, None, 9.81).unwrap();
+            let core = multipendulum_core::chaos::first_flips(
+                &chain, &theta, &omega, 10.0, 0.01, None, &Builtin::None, &multipendulum_core::watch::Watch::new(),
+            )
+            .unwrap();
+            assert_eq!(out.to_vec(), core);
+            assert!(out.iter().any(|t| t.is_finite()) && out.iter().any(|t| t.is_infinite()), "{out:?}");
+            assert_eq!(call(2, 10.0, &mut out), INPUT_ERROR);
+            assert_eq!(message(), "link must be < N = 2, got 2");
+            assert_eq!(call(-1, -1.0, &mut out), INPUT_ERROR);
+            assert_eq!(message(), "t_max must be > 0 and finite, got -1");
+        }
+    }
+
 }

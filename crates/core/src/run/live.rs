@@ -125,6 +125,16 @@ impl<T: TorqueSource> Stepper<T> {
         self.run.system().pivot_motion(self.t()).map_or([f64::NAN; 2], |m| m.pos)
     }
 
+    /// The pivot's position, velocity and acceleration now (zeros when it is fixed).
+    pub fn pivot_motion(&self) -> Result<crate::dynamics::base::Motion> {
+        self.run.system().pivot_motion(self.t())
+    }
+
+    /// The drive the run has now (to restore after a [`Stepper::set_drive`]).
+    pub fn drive(&self) -> &crate::dynamics::base::Drive {
+        self.run.system().drive()
+    }
+
     /// Replace the base's drive between steps (the viewer's dragged pivot, an environment's
     /// cart force); the integrator restarts from the current state.
     /// The energy balance stays exact when the new drive continues the old one's position and
