@@ -840,3 +840,157 @@ def test_one_wasm_step_of_the_extended_model_equals_the_python_package(open_page
         assert terms["cart"]["v"] == pytest.approx(sol.cart_v[-1], abs=1e-12)
     else:
         assert terms["cart"] is None
+
+
+# ----------------------------------------------------------------------------------------------
+# The explorable viewer: dragging the base, the phase plot, the flip-map explorer
+
+# The bound of a dragged base's acceleration (crates/wasm: FOLLOW_ACCELERATION), m/s^2.
+FOLLOW_ACCELERATION = 40.0
+
+
+def _stage(p):
+    """The canvas's centre (CSS px) and its scale (CSS px per metre) for a chain of `total` m."""
+    box = p.page.locator("#view").bounding_box()
+    inner = box["width"] - 2, box["height"] - 2  # inside the 1 px border
+    return box["x"] + 1 + inner[0] / 2, box["y"] + 1 + inner[1] / 2, 0.47 * min(inner) / 2
+
+
+def _drag_base(p, cx, cy, path, pause_ms=30):
+    """Grab the base at (cx, cy), move through `path` (CSS px), sampling the base's motion at
+    each point; returns the samples (the pointer is still down)."""
+    p.page.mouse.move(cx, cy)
+    p.page.mouse.down()
+    samples = []
+    for x, y in path:
+        p.page.mouse.move(x, y)
+        p.page.wait_for_timeout(pause_ms)
+        samples.append(p.js("({t: multipendulum.state.sim.t, ...multipendulum.state.sim.baseMotion()})"))
+    return samples
+
+
+def test_dragging_the_pivot_shakes_the_running_chain_and_its_work_balances(open_page):
+    p = open_page("?n=2&lengths=1&masses=1&theta=0,0&method=rk4&dt=0.002")
+    cx, cy, scale = _stage(p)
+    assert not p.js("multipendulum.state.playing")
+    # Out to the right, a fast jerk back and forth, then hold 0.6 m to the right.
+    path = [(cx + k * 0.06 * scale, cy) for k in range(1, 11)] + [(cx - 0.5 * scale, cy + 0.3 * scale),
+                                                                   (cx + 0.8 * scale, cy)] * 3
+    path += [(cx + 0.6 * scale, cy)] * 40
+    samples = _drag_base(p, cx, cy, path)
+    assert p.js("multipendulum.state.playing"), "grabbing the base runs the chain"
+    assert p.js("multipendulum.state.drag.base") is True
+    p.page.mouse.up()
+    assert max(max(abs(a) for a in s["acc"]) for s in samples) <= FOLLOW_ACCELERATION * (1 + 1e-9)
+    assert max(abs(s["acc"][0]) for s in samples) > 1.0, "the pivot was accelerated"
+    terms = p.js("multipendulum.state.terms")
+    assert abs(terms["base"][0] - 0.6) < 0.05 and abs(terms["base"][1]) < 0.05, terms["base"]
+    # The chain answered through the moving-pivot physics, and the energy balance holds.
+    theta = p.js("multipendulum.state.sim.theta()")
+    assert max(abs(v) for v in theta) > 0.05, theta
+    assert abs(terms["work"]["pivot"]) > 1e-3 and terms["residual"] < 1e-6, terms
+    assert p.js("multipendulum.state.playing") and p.errors == []
+
+
+def test_dragging_the_cart_pulls_it_along_its_rail(open_page):
+    p = open_page("?n=1&kind=rods&lengths=1&masses=1&theta=0&cart_mass=1&method=rk4&dt=0.002")
+    cx, cy, scale = _stage(p)
+    count, x_before = _cart_pixels(p)
+    assert count > 200
+    _drag_base(p, cx, cy, [(cx + k * 0.05 * scale, cy - k * 2) for k in range(1, 11)] + [(cx + 0.5 * scale, cy)] * 40)
+    p.page.mouse.up()
+    terms = p.js("multipendulum.state.terms")
+    # Pulled along the rail only (the pointer also went up), towards the pointer's x.
+    assert terms["base"][1] == 0 and terms["cart"]["x"] > 0.25, terms
+    assert terms["work"]["cart"] != 0 and terms["residual"] < 1e-6, terms
+    assert _cart_pixels(p)[1] > x_before + 10
+    assert p.js("multipendulum.state.playing") and p.errors == []
+
+
+def test_the_phase_plot_follows_the_chosen_link(open_page):
+    p = open_page("?n=2&theta=130,160")
+    blank = p.page.locator("#phase").screenshot()
+    p.page.click("#play")
+    p.wait("multipendulum.state.sim.t > 1")
+    p.page.click("#play")
+    points = p.js("multipendulum.state.phase.points")
+    assert len(points) > 20
+    t, theta, omega = points[-1]
+    assert t == p.t
+    wrapped = (p.js("multipendulum.state.sim.theta()")[0] + math.pi) % (2 * math.pi) - math.pi
+    assert theta == pytest.approx(wrapped, abs=1e-12) and omega == p.js("multipendulum.state.sim.omega()")[0]
+    assert p.page.locator("#phase").screenshot() != blank
+    p.page.fill("#phase-link", "2")
+    p.page.locator("#phase-link").dispatch_event("change")
+    points = p.js("multipendulum.state.phase.points")
+    assert len(points) == 1 and points[0][2] == p.js("multipendulum.state.sim.omega()")[1]
+    assert p.errors == []
+
+
+def _explorer(browser, site, query=""):
+    p = Page(browser, site.url + "explore.html" + query)
+    p.wait("!document.body.dataset.computing")
+    return p
+
+
+def test_the_flip_map_explorer_computes_the_cores_map_and_runs_a_clicked_cell(browser, site):
+    p = _explorer(browser, site, "?resolution=8&t_max=2")
+    try:
+        assert p.page.title() == "multipendulum flip-map explorer"
+        assert p.js("multipendulum.state.done.setup.resolution") == 8  # the map of the URL, on opening
+        for name, value in [("resolution", "24"), ("t_max", "6"), ("theta1", "-150, 150"), ("masses", "1, 2")]:
+            p.page.fill(f"[name={name}]", value)
+        p.page.click("#compute")
+        p.wait("multipendulum.state.done.setup.resolution === 24 && !document.body.dataset.computing")
+        assert "resolution=24" in p.page.url and "masses=1%2C+2" in p.page.url  # the URL shares the map
+        times = np.array([math.inf if v is None else v for v in p.js("Array.from(multipendulum.state.done.times)")])
+        # The same kernel as the Python package's, cell for cell (rows: theta2 bottom up).
+        n = 24
+        centres = lambda a, b: np.radians(a + (b - a) * (np.arange(n) + 0.5) / n)
+        t1, t2 = np.meshgrid(centres(-150, 150), centres(-180, 180))
+        ref = mp.flip_times(mp.Chain([1, 1], [1, 2]), np.stack([t1, t2], axis=-1), t_max=6.0, dt=0.01)
+        np.testing.assert_array_equal(times.reshape(n, n), ref)
+        assert np.isfinite(ref).any() and np.isinf(ref).any()
+        assert "576 pendulums" in p.page.locator("#status").inner_text()
+        # Click a cell that flips: the viewer beside the map runs that pendulum.
+        j, i = np.argwhere(np.isfinite(ref))[len(np.argwhere(np.isfinite(ref))) // 2]
+        box = p.page.locator("#map").bounding_box()
+        p.page.mouse.click(box["x"] + (i + 0.5) * box["width"] / n, box["y"] + (n - j - 0.5) * box["height"] / n)
+        assert p.js("multipendulum.state.chosen") == [int(i), int(j)]
+        assert f"flips at t = {ref[j, i]:.3f} s" in p.page.locator("#cell").inner_text()
+        frame = p.page.frame_locator("#pendulum")
+        frame.locator("body[data-ready=true]").wait_for(timeout=15000)
+        inner = p.page.frames[1]
+        for _ in range(100):
+            if inner.evaluate("multipendulum.state.sim.t > 0.3"):
+                break
+            p.page.wait_for_timeout(50)
+        assert inner.evaluate("multipendulum.state.playing")
+        start = inner.evaluate("multipendulum.state.setup.theta")
+        np.testing.assert_allclose(start, [t1[j, i], t2[j, i]], atol=1e-9)
+        assert inner.evaluate("multipendulum.state.setup.masses") == [1, 2]
+        assert p.errors == []
+    finally:
+        p.close()
+
+
+@pytest.mark.parametrize("field, value, message", [
+    ("resolution", "abc", 'Not computed: Resolution must be a whole number from 2 to 400, got "abc"'),
+    ("resolution", "401", 'Not computed: Resolution must be a whole number from 2 to 400, got "401"'),
+    ("theta2", "30, -30", 'Not computed: θ₂ from, to: "from" must be less than "to", both finite, got 30, -30'),
+    ("dt", "-1", "Not computed: dt must be > 0 and finite, got -1"),
+    ("lengths", "1, x", 'Not computed: Lengths: "x" is not a number'),
+    ("masses", "1, -1", "Not computed: masses[1] must be >= 0 and finite, got -1"),
+    ("t_max", "1e12", "Not computed: t_max / dt = 1.000e14 steps per trajectory, more than 1e9; use a larger dt or a shorter time"),
+])
+def test_the_explorer_refuses_bad_values_and_keeps_its_map(browser, site, field, value, message):
+    p = _explorer(browser, site, "?resolution=4&t_max=1")
+    try:
+        before = p.js("multipendulum.state.done.times.length")
+        p.page.fill(f"[name={field}]", value)
+        p.page.click("#compute")
+        assert p.page.locator("#message").inner_text() == message
+        assert p.page.get_attribute(f"[name={field}]", "aria-invalid") == "true"
+        assert p.js("multipendulum.state.done.times.length") == before and p.errors == []
+    finally:
+        p.close()

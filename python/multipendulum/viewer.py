@@ -42,10 +42,11 @@ _TYPES = {
     ".png": "image/png",
     ".svg": "image/svg+xml",
 }
-# The page needs its own scripts, WebAssembly compilation and data: URLs (the empty favicon).
+# The page needs its own scripts, WebAssembly compilation and data: URLs (the empty favicon);
+# the flip-map explorer shows the viewer in a frame of its own origin.
 _POLICY = ("default-src 'self'; script-src 'self' 'wasm-unsafe-eval'; style-src 'self'; "
            "img-src 'self' data:; connect-src 'self'; object-src 'none'; base-uri 'none'; "
-           "form-action 'none'; frame-ancestors 'none'")
+           "form-action 'none'; frame-ancestors 'self'")
 
 
 def web_dir() -> Path:

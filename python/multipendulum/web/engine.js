@@ -22,6 +22,8 @@ export let ADAPTIVE = new Set();
 export let DEFAULTS = {};
 /** Per method: { order, symplectic, implicit, adaptive, needs_dt, forms }. */
 export let METHOD_INFO = {};
+/** The core's limits: { min_rtol, max_angle, max_chaos_steps, viewer_max_links, ... }. */
+export let LIMITS = {};
 
 const DONE = 0;
 const BUDGET = 1;
@@ -44,6 +46,7 @@ export async function loadEngine(url = new URL("./multipendulum.wasm", import.me
   METHOD_INFO = facts.methods;
   ADAPTIVE = new Set(METHODS.filter((m) => facts.methods[m].adaptive));
   DEFAULTS = facts.defaults;
+  LIMITS = facts.limits;
   return engine;
 }
 
@@ -114,11 +117,42 @@ export class Engine {
   }
 
   /**
+   * First-flip times of undriven double pendulums, by the core's lane kernel: `p` is a chain as
+   * for `simulation` (2 links; kind, lengths, masses, com?, inertia?, g), `theta` and `omega`
+   * hold the initial states row by row (2 values each), rk4 at `dt` up to `tMax`, `link` 0 or 1
+   * (null: either). Returns a Float64Array of times (Infinity: no flip before tMax).
+   */
+  firstFlips(p, theta, omega, tMax, dt, link = null) {
+    const b = theta.length / 2;
+    if (!Number.isInteger(b) || omega.length !== theta.length) {
+      throw new EngineError("theta and omega must both hold 2 values per pendulum", "input");
+    }
+    const allocs = [];
+    const put = (v) => {
+      const a = this.put(v);
+      allocs.push(a);
+      return a[0];
+    };
+    try {
+      const out = put(new Array(b).fill(0));
+      const status = this.x.mp_first_flips(
+        p.kind === "rods" ? 1 : 0, put(p.lengths), put(p.masses), put(p.com), put(p.inertia), p.g,
+        put(theta), put(omega), b, tMax, dt, link == null ? -1 : link, out,
+      );
+      if (status < 0) throw new EngineError(this.lastError(), "input");
+      return Float64Array.from(this.f64(out, b));
+    } finally {
+      for (const [ptr, bytes] of allocs) if (ptr) this.x.mp_free(ptr, bytes);
+    }
+  }
+
+  /**
    * Start a simulation at t = 0. `p`: { kind: "points" | "rods", lengths, masses, com?, inertia?,
    * g, method, dt, rtol, atol, theta (rad), omega (rad/s) }, and optionally the losses and the
    * base: damping (N m s/rad) and friction (N m), one per joint; friction_velocity (rad/s);
    * cart: { mass, damping?, x0?, v0?, force? }; pivot: { x?, y? } (m); torque: { convention:
    * "generalized" | "joint", kind, ... } (N m, one column per link). Signals as in `signal`.
+   * `draggable: true` lets the base be pulled while it runs (`Simulation.follow`).
    * Arrays have one entry per link. Throws EngineError for values the core refuses.
    */
   simulation(p) {
@@ -149,6 +183,7 @@ export class Engine {
       check(fn(kind, rows, put(data), data.length));
     };
     try {
+      if (p.draggable) this.x.mp_setup_draggable(setup);
       if (p.damping != null || p.friction != null || p.friction_velocity != null) {
         this.x.mp_setup_losses(setup, n, put(p.damping), put(p.friction), p.friction_velocity ?? DEFAULTS.friction_velocity);
       }
@@ -226,6 +261,25 @@ export class Simulation {
   positions() { return this.read(this.x.mp_sim_positions, 2 * this.n); }
   /** The base's position [x, y] (m): the pivot's (the origin when fixed), or the cart's at y = 0. */
   base() { return this.read(this.x.mp_sim_base, 2); }
+
+  check(status) {
+    if (status < 0) throw new EngineError(this.engine.lastError(), status === INPUT_ERROR ? "input" : "integration");
+  }
+
+  /** The base's motion now: { pos: [x, y], vel, acc } (a cart's along the rail, acc zero). */
+  baseMotion() {
+    this.check(this.x.mp_sim_base_motion(this.handle, this.buf));
+    const [x, y, vx, vy, ax, ay] = this.engine.f64(this.buf, 6);
+    return { pos: [x, y], vel: [vx, vy], acc: [ax, ay] };
+  }
+
+  /** Pull the base towards (x, y) (m, lab frame) from now on: a pivot follows as a critically
+   *  damped spring through the moving-pivot physics, a cart is pulled by a force; the
+   *  acceleration stays bounded (the engine's FOLLOW_RATE and FOLLOW_ACCELERATION). */
+  follow(x, y) { this.check(this.x.mp_sim_follow(this.handle, x, y)); }
+
+  /** The pointer let go: a cart gets its own force back, a pivot settles where it was pulled. */
+  release() { this.check(this.x.mp_sim_release(this.handle)); }
 
   /** The energy terms of the current state, as the core computes them (J, lab frame, work since
    *  t = 0): { kinetic, potential, energy, work: { torque, pivot, cart }, workIn (their sum),

@@ -2,14 +2,15 @@
 // Every value typed, loaded from a scenario or read from the URL goes through the same path:
 // fields (strings) -> setup (numbers) -> a new simulation built by the core, which checks it.
 // Nothing is applied unless the core accepts it; the message says what was refused.
-import { ADAPTIVE, DEFAULTS as CORE_DEFAULTS, EngineError, loadEngine, METHOD_INFO, METHODS } from "./engine.js";
+import { ADAPTIVE, DEFAULTS as CORE_DEFAULTS, EngineError, LIMITS, loadEngine, METHOD_INFO, METHODS } from "./engine.js";
+import { ChainView, fitCanvas, PhasePlot, reach } from "./draw.js";
 import { fromToml, parseInline, parseToml, ScenarioError, toInline } from "./scenario.js";
 
-const MAX_N = 100;
-const TRAIL_SECONDS = 2;
 const PLOT_POINTS = 1500;
 const FRAME_BUDGET_MS = 10; // integration time per frame; beyond it the run slows down instead
 const DEG = Math.PI / 180;
+// The most links the page shows (the core's fact, read once the engine has loaded).
+let MAX_LINKS = 0;
 /** The core's energy error: |E - E0| over the potential well's depth plus the largest kinetic
  *  energy; with losses or a drive, the residual of the balance E - E0 = W - D over the same scale. */
 const ERROR_LABEL = "energy error |ΔE|/(g Σ|hᵢ| + T_max)";
@@ -53,12 +54,13 @@ const $ = (id) => document.getElementById(id);
 const form = $("setup");
 const view = $("view");
 const plot = $("plot");
+const phaseCanvas = $("phase");
 const ui = {
   play: $("play"), step: $("step"), reset: $("reset"), share: $("share"), load: $("load"),
   message: $("message"), name: $("name"), status: $("status"),
   t: $("t"), energy: $("energy"), error: $("error"), errorLabel: $("error-label"), steps: $("steps"), fps: $("fps"),
   kinetic: $("kinetic"), potential: $("potential"), work: $("work"), dissipated: $("dissipated"), cartX: $("cart-x"),
-  pivot: $("pivot"),
+  pivot: $("pivot"), phaseLink: $("phase-link"), base: $("base"),
 };
 
 const state = {
@@ -69,11 +71,10 @@ const state = {
   playing: false,
   clock: 0, // the simulated time the display should be at
   lagging: false,
-  trail: [], // [t, x, y] of the tip (lab frame)
-  pivotTrail: [], // [t, x, y] of the base
+  chainView: null, // the canvas's drawing of the chain (draw.js)
+  phase: new PhasePlot(phaseCanvas),
   history: [], // [t, energy error]
   terms: null, // the core's energy terms of the state shown
-  view: null, // the world point at the canvas centre (it follows a cart in jumps)
   lastFrame: 0,
   fps: 0,
   drag: null,
@@ -135,8 +136,8 @@ function parseSpeed(text) {
 function parseFields(f) {
   const ntext = String(f.n).trim();
   const n = Number(ntext);
-  if (!/^\d+$/.test(ntext) || n < 1 || n > MAX_N) {
-    throw new FieldError("n", `N must be a whole number from 1 to ${MAX_N}, got "${ntext}"`);
+  if (!/^\d+$/.test(ntext) || n < 1 || n > MAX_LINKS) {
+    throw new FieldError("n", `N must be a whole number from 1 to ${MAX_LINKS}, got "${ntext}"`);
   }
   const speed = parseSpeed(f.speed);
   const points = f.kind !== "rods";
@@ -174,6 +175,7 @@ function parseFields(f) {
     rtol: ADAPTIVE.has(method) ? number("tol", f.tol) : CORE_DEFAULTS.rtol,
     atol: ADAPTIVE.has(method) ? number("atol", f.atol) : CORE_DEFAULTS.atol,
     speed,
+    draggable: true, // the pivot or the cart can be pulled while the chain runs
   };
 }
 
@@ -214,10 +216,14 @@ function restart() {
   ui.errorLabel.textContent = ideal ? ERROR_LABEL : BALANCE_LABEL;
   for (const el of document.querySelectorAll("[data-term=cart]")) el.hidden = !s.cart;
   for (const el of document.querySelectorAll("[data-term=pivot]")) el.hidden = !s.pivot;
-  state.view = null;
+  state.chainView = new ChainView(view, {
+    lengths: s.lengths, masses: s.masses, kind: s.kind, cart: !!s.cart, x0: s.cart?.x0 ?? 0,
+    reach: Math.hypot(reach(s.pivot?.x), reach(s.pivot?.y)),
+  });
+  state.phase.reset();
+  if (+ui.phaseLink.value > s.lengths.length) ui.phaseLink.value = String(s.lengths.length);
+  ui.phaseLink.max = String(s.lengths.length);
   state.clock = 0;
-  state.trail = [];
-  state.pivotTrail = [];
   state.history = [];
   state.failed = false;
   state.lagging = false;
@@ -375,13 +381,9 @@ function record() {
   const sim = state.sim;
   const t = sim.t;
   const terms = (state.terms = sim.terms());
-  const [bx, by] = terms.base;
-  const tip = sim.positions().slice(-2);
-  for (const [trail, x, y] of [[state.trail, bx + tip[0], by + tip[1]], [state.pivotTrail, bx, by]]) {
-    const last = trail[trail.length - 1];
-    if (!last || t > last[0]) trail.push([t, x, y]);
-    while (trail.length > 2 && t - trail[0][0] > TRAIL_SECONDS) trail.shift();
-  }
+  state.chainView.record(t, sim.positions(), terms.base);
+  const k = phaseIndex();
+  state.phase.record(t, sim.theta()[k], sim.omega()[k]);
   const h = state.history;
   if (!h.length || t > h[h.length - 1][0]) {
     h.push([t, terms.residual]);
@@ -407,142 +409,19 @@ function frame(now) {
 
 // ---- Drawing -----------------------------------------------------------------------------------
 
-function fitCanvas(canvas) {
-  const dpr = window.devicePixelRatio || 1;
-  const w = Math.round(canvas.clientWidth * dpr);
-  const h = Math.round(canvas.clientHeight * dpr);
-  if (w > 0 && h > 0 && (canvas.width !== w || canvas.height !== h)) {
-    canvas.width = w;
-    canvas.height = h;
-  }
-  return dpr;
+/** The link whose phase the small plot shows (0-based). */
+function phaseIndex() {
+  const k = Math.round(+ui.phaseLink.value) - 1;
+  return Math.min(Math.max(Number.isFinite(k) ? k : 0, 0), state.sim.n - 1);
 }
-
-/** How far a pivot axis goes from the origin (m), read off its signal. */
-function reach(sig) {
-  if (sig == null) return 0;
-  if (typeof sig === "number") return Math.abs(sig);
-  if (sig.kind === "constant") return Math.abs(sig.value);
-  if (sig.kind === "sinusoid") return Math.abs(sig.offset ?? 0) + Math.abs(sig.amplitude);
-  return Math.max(...sig.values.map(Math.abs));
-}
-
-/** World (m) to canvas pixels: the origin (or, on a cart, a point of the rail that jumps to
- *  follow it) in the middle, the stretched chain and the pivot's travel just fit. */
-function viewTransform() {
-  const s = state.setup;
-  const chain = s.lengths.reduce((a, b) => a + b, 0);
-  const total = chain + Math.hypot(reach(s.pivot?.x), reach(s.pivot?.y));
-  const size = Math.min(view.width, view.height);
-  const scale = (0.47 * size) / total;
-  if (state.view == null) state.view = [s.cart ? s.cart.x0 : 0, 0];
-  if (s.cart && state.terms) {
-    // Recentre when the cart nears the edge, in a jump: the rail's ticks show it moving.
-    const x = state.terms.base[0];
-    const half = (0.5 * view.width) / scale;
-    if (Math.abs(x - state.view[0]) > 0.8 * half) state.view = [x, 0];
-  }
-  return { cx: view.width / 2 - state.view[0] * scale, cy: view.height / 2 + state.view[1] * scale, scale, total };
-}
-
-const linkColor = (i, n) => `hsl(${n > 1 ? 212 - (190 * i) / (n - 1) : 212}, 62%, 45%)`;
 
 function draw() {
   if (!state.sim) return;
-  const dpr = fitCanvas(view);
-  const ctx = view.getContext("2d");
-  const { cx, cy, scale, total } = viewTransform();
-  const px = (x) => cx + x * scale;
-  const py = (y) => cy - y * scale;
-  ctx.clearRect(0, 0, view.width, view.height);
-  const { lengths, masses, kind } = state.setup;
-  const n = lengths.length;
-  const [bx, by] = state.terms.base;
-  const pos = state.sim.positions().map((v, i) => v + (i % 2 ? by : bx));
-
-  if (state.setup.cart) drawRail(ctx, px, py, scale, total, dpr);
-  if (state.setup.pivot) {
-    // The pivot's recent path.
-    ctx.strokeStyle = "rgba(29, 39, 51, 0.35)";
-    ctx.lineWidth = 1.5 * dpr;
-    ctx.beginPath();
-    state.pivotTrail.forEach(([, x, y], i) => (i ? ctx.lineTo(px(x), py(y)) : ctx.moveTo(px(x), py(y))));
-    ctx.stroke();
-  }
-
-  // The tip's trail, fading with age.
-  const trail = state.trail;
-  const now = state.sim.t;
-  ctx.lineCap = "round";
-  ctx.lineWidth = 2 * dpr;
-  for (let i = 1; i < trail.length; i++) {
-    const age = (now - trail[i][0]) / TRAIL_SECONDS;
-    ctx.strokeStyle = `rgba(230, 120, 30, ${Math.max(0, 0.85 * (1 - age))})`;
-    ctx.beginPath();
-    ctx.moveTo(px(trail[i - 1][1]), py(trail[i - 1][2]));
-    ctx.lineTo(px(trail[i][1]), py(trail[i][2]));
-    ctx.stroke();
-  }
-
-  // Links, then bobs (point masses) on top.
-  const shortest = Math.min(...lengths) * scale;
-  const rodWidth = Math.min(Math.max(0.14 * shortest, 2.5 * dpr), 12 * dpr);
-  ctx.lineWidth = kind === "rods" ? rodWidth : Math.max(1.5 * dpr, Math.min(3 * dpr, 0.05 * shortest));
-  let x0 = bx, y0 = by;
-  for (let i = 0; i < n; i++) {
-    ctx.strokeStyle = kind === "rods" ? linkColor(i, n) : "#3b4652";
-    ctx.beginPath();
-    ctx.moveTo(px(x0), py(y0));
-    ctx.lineTo(px(pos[2 * i]), py(pos[2 * i + 1]));
-    ctx.stroke();
-    x0 = pos[2 * i];
-    y0 = pos[2 * i + 1];
-  }
-  if (kind !== "rods") {
-    const heaviest = Math.max(...masses) || 1;
-    const base = Math.min(Math.max(0.3 * shortest, 2.5 * dpr), 14 * dpr);
-    for (let i = 0; i < n; i++) {
-      const r = Math.max(1.5 * dpr, base * Math.cbrt(masses[i] / heaviest));
-      ctx.fillStyle = linkColor(i, n);
-      ctx.beginPath();
-      ctx.arc(px(pos[2 * i]), py(pos[2 * i + 1]), r, 0, 2 * Math.PI);
-      ctx.fill();
-    }
-  }
-  // The pivot.
-  ctx.fillStyle = "#1d2733";
-  ctx.beginPath();
-  ctx.arc(px(bx), py(by), 4 * dpr, 0, 2 * Math.PI);
-  ctx.fill();
-
+  const drag = state.drag;
+  state.chainView.draw(state.sim.positions(), state.terms.base, { target: drag?.base ? drag.target : null });
   drawPlot();
+  state.phase.draw(`link ${phaseIndex() + 1}`);
   readouts();
-}
-
-/** The cart's colour (the tests find the block by it). */
-const CART_COLOR = "#a0722a";
-
-/** The rail (y = 0) with ticks every `step` m, and the cart, a block centred on the pivot. */
-function drawRail(ctx, px, py, scale, total, dpr) {
-  const y = py(0);
-  ctx.strokeStyle = "#9aa4ae";
-  ctx.lineWidth = 2 * dpr;
-  ctx.beginPath();
-  ctx.moveTo(0, y);
-  ctx.lineTo(view.width, y);
-  ctx.stroke();
-  const step = 10 ** Math.floor(Math.log10(total / 2));
-  const left = (0 - px(0)) / scale, right = (view.width - px(0)) / scale;
-  ctx.lineWidth = 1 * dpr;
-  ctx.beginPath();
-  for (let k = Math.ceil(left / step); k <= Math.floor(right / step); k++) {
-    ctx.moveTo(px(k * step), y);
-    ctx.lineTo(px(k * step), y + 6 * dpr);
-  }
-  ctx.stroke();
-  const w = Math.max(24 * dpr, 0.18 * total * scale), h = 0.5 * w;
-  ctx.fillStyle = CART_COLOR;
-  ctx.fillRect(px(state.terms.base[0]) - w / 2, y - h / 2, w, h);
 }
 
 function drawPlot() {
@@ -614,38 +493,26 @@ function readouts() {
   ui.status.textContent = `${what} · ${s.method}, ${how} · ${s.speed} × real time${lag}`;
 }
 
-// ---- Dragging links ----------------------------------------------------------------------------
-
-/** The pointer in canvas pixels (inside the border, at the backing store's resolution). */
-function pointer(e) {
-  const rect = view.getBoundingClientRect();
-  const k = view.width / view.clientWidth;
-  return [(e.clientX - rect.left - view.clientLeft) * k, (e.clientY - rect.top - view.clientTop) * k];
-}
-
-/** The link under the pointer (index), within a few pixels, or -1. */
-function linkAt(mx, my) {
-  const { cx, cy, scale } = viewTransform();
-  const pos = state.sim.positions();
-  const [bx, by] = state.terms.base;
-  const tolerance = 12 * (window.devicePixelRatio || 1);
-  let best = -1, bestD = tolerance;
-  let x0 = cx + bx * scale, y0 = cy - by * scale;
-  for (let i = 0; i < state.sim.n; i++) {
-    const x1 = cx + (bx + pos[2 * i]) * scale, y1 = cy - (by + pos[2 * i + 1]) * scale;
-    const dx = x1 - x0, dy = y1 - y0;
-    const u = Math.max(0, Math.min(1, ((mx - x0) * dx + (my - y0) * dy) / (dx * dx + dy * dy || 1)));
-    const d = Math.hypot(mx - (x0 + u * dx), my - (y0 + u * dy));
-    if (d <= bestD) { best = i; bestD = d; } // ties go to the outer link: its end is grabbed
-    x0 = x1; y0 = y1;
-  }
-  return best;
-}
+// ---- Dragging: a link sets the start, the base moves the running chain -----------------------
+//
+// Grabbing a link sets its starting angle (the run pauses and restarts from the new angles).
+// Grabbing the pivot (or the cart) drags the base while the chain runs: the engine pulls the
+// base towards the pointer as a critically damped spring (a pivot follows through the model's
+// moving-pivot physics, a cart is pulled along its rail by a force), so the acceleration stays
+// bounded however fast the pointer moves (crates/wasm: FOLLOW_RATE, FOLLOW_ACCELERATION).
 
 view.addEventListener("pointerdown", (e) => {
-  if (!state.sim) return;
-  const [mx, my] = pointer(e);
-  const link = linkAt(mx, my);
+  if (!state.sim || state.failed) return;
+  const [mx, my] = state.chainView.pointer(e);
+  const pos = state.sim.positions(), base = state.terms.base;
+  if (state.chainView.onBase(mx, my, base)) {
+    view.setPointerCapture(e.pointerId);
+    state.drag = { base: true, target: base };
+    setPlaying(true);
+    pullTo(mx, my);
+    return;
+  }
+  const link = state.chainView.linkAt(mx, my, pos, base);
   if (link < 0) return;
   view.setPointerCapture(e.pointerId);
   state.drag = { link, wasPlaying: state.playing };
@@ -654,36 +521,52 @@ view.addEventListener("pointerdown", (e) => {
 });
 
 view.addEventListener("pointermove", (e) => {
-  const [mx, my] = pointer(e);
+  const [mx, my] = state.chainView?.pointer(e) ?? [0, 0];
   if (!state.drag) {
-    if (state.sim) view.style.cursor = linkAt(mx, my) >= 0 ? "grab" : "default";
+    if (state.sim) {
+      const base = state.terms.base;
+      view.style.cursor = state.chainView.onBase(mx, my, base) ? "move"
+        : state.chainView.linkAt(mx, my, state.sim.positions(), base) >= 0 ? "grab" : "default";
+    }
     return;
   }
-  view.style.cursor = "grabbing";
-  dragTo(mx, my);
+  view.style.cursor = state.drag.base ? "move" : "grabbing";
+  if (state.drag.base) pullTo(mx, my);
+  else dragTo(mx, my);
 });
 
 function endDrag() {
   if (!state.drag) return;
-  const { wasPlaying } = state.drag;
+  const drag = state.drag;
   state.drag = null;
   view.style.cursor = "default";
+  if (drag.base) {
+    guarded(() => state.sim.release());
+    return;
+  }
   updateUrl();
-  setPlaying(wasPlaying);
+  setPlaying(drag.wasPlaying);
 }
 view.addEventListener("pointerup", endDrag);
 view.addEventListener("pointercancel", endDrag);
 
+/** Pull the base towards the pointer (lab frame; a cart only along its rail). */
+function pullTo(mx, my) {
+  const { toWorld } = state.chainView.transform(state.terms.base);
+  const [x, y] = toWorld(mx, my);
+  state.drag.target = state.setup.cart ? [x, 0] : [x, y];
+  guarded(() => state.sim.follow(...state.drag.target));
+}
+
 /** Point the dragged link at the pointer; the links below keep their absolute angles. */
 function dragTo(mx, my) {
-  const { cx, cy, scale } = viewTransform();
   const i = state.drag.link;
   const pos = state.sim.positions();
   const [x0, y0] = i > 0 ? [pos[2 * i - 2], pos[2 * i - 1]] : [0, 0];
   // The pointer relative to the pivot, as the positions are.
   const [bx, by] = state.terms.base;
-  const wx = (mx - cx) / scale - bx, wy = (cy - my) / scale - by;
-  const angle = Math.atan2(wx - x0, -(wy - y0)) / DEG;
+  const [px, py] = state.chainView.transform(state.terms.base).toWorld(mx, my);
+  const angle = Math.atan2(px - bx - x0, -(py - by - y0)) / DEG;
   const theta = state.setup.theta.map((x) => x / DEG);
   theta[i] = Math.round(angle * 10) / 10;
   apply({ ...state.fields, theta: theta.map(fmt).join(", "), omega: "0" }, { url: false });
@@ -705,10 +588,14 @@ form.addEventListener("change", (e) => {
     }
     return;
   }
-  if (e.target.name === "n" && /^\s*\d+\s*$/.test(f.n) && +f.n >= 1 && +f.n <= MAX_N) resizeLists(f, +f.n);
+  if (e.target.name === "n" && /^\s*\d+\s*$/.test(f.n) && +f.n >= 1 && +f.n <= MAX_LINKS) resizeLists(f, +f.n);
   apply(f);
 });
 form.addEventListener("submit", (e) => e.preventDefault());
+ui.phaseLink.addEventListener("change", () => {
+  state.phase.reset();
+  if (state.sim) record();
+});
 
 ui.play.addEventListener("click", () => {
   if (state.failed) apply(state.fields);
@@ -763,12 +650,16 @@ async function main() {
     return;
   }
   Object.assign(DEFAULTS, { method: CORE_DEFAULTS.method, tol: fmt(CORE_DEFAULTS.rtol), atol: fmt(CORE_DEFAULTS.atol) });
+  MAX_LINKS = LIMITS.viewer_max_links;
+  form.elements.n.max = String(MAX_LINKS);
   for (const m of METHODS) {
     const info = METHOD_INFO[m];
     const kind = info.adaptive ? "adaptive" : info.symplectic ? "symplectic" : "fixed step";
     form.elements.method.append(new Option(`${m} (order ${info.order}, ${kind})`, m));
   }
   const fromUrl = fieldsFromUrl();
+  // `play=1` (the flip-map explorer's link to a cell): start running at once.
+  const play = new URLSearchParams(location.search).get("play") === "1";
   const scenario = new URLSearchParams(location.search).get("scenario");
   apply(DEFAULTS);
   if (fromUrl) apply(fromUrl);
@@ -782,6 +673,7 @@ async function main() {
       else showMessage(`Cannot load the scenario ${url.pathname}: HTTP ${response.status}`);
     }
   }
+  if (play && !state.failed) setPlaying(true);
   window.multipendulum = { engine: state.engine, state, apply };
   document.body.dataset.ready = "true";
   requestAnimationFrame(frame);
