@@ -5,7 +5,9 @@ viewer's own files (no path traversal, however encoded), every parameter checked
 tests drive Debian's chromium with Playwright: the page loads cleanly, the pendulum moves, the
 energy readout stays at the integrator's accuracy, bad input is refused with a message, a
 scenario loads, the URL shares the setup, and one step of the WebAssembly engine equals the
-Python package's to 1e-12.
+Python package's to 1e-12; dragging the pivot or the cart shakes the running chain within the
+acceleration bound while the energy balance holds, the phase plot follows its link, and the
+flip-map explorer computes the Python package's map bit for bit and runs a clicked cell.
 
 Without chromium or Playwright (`make test` installs both when it can) the browser tests are
 skipped with the reason; with MULTIPENDULUM_REQUIRE_BROWSER=1 (CI) they fail instead.
