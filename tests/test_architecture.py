@@ -26,8 +26,8 @@ def test_the_layers_contract_holds():
 ROOT_IMPORT = re.compile(r"^\s*(import multipendulum(?!\._core as _core\b)|from multipendulum import|from \. import)", re.M)
 
 
-@pytest.mark.parametrize("module", ["viewer", "fractal", "modes", "animation", "plotting", "results", "scenario",
-                                    "sweeps", "chaos", "_simulate", "checkpoint", "_lyapunov", "_indicators", "_zero_one", "_chain", "_base", "_torque",
+@pytest.mark.parametrize("module", ["viewer", "notebook", "fractal", "modes", "animation", "plotting", "results", "scenario",
+                                    "sweeps", "chaos", "_simulate", "_notebook", "checkpoint", "_lyapunov", "_indicators", "_zero_one", "_chain", "_base", "_torque",
                                     "_convert", "_progress", "_files", "_frames", "errors"])
 def test_api_modules_import_only_the_core_from_the_package_root(module):
     code = "\n".join(line for line in (PKG / f"{module}.py").read_text().splitlines()

@@ -858,9 +858,10 @@ def _stage(p):
     return box["x"] + 1 + inner[0] / 2, box["y"] + 1 + inner[1] / 2, 0.47 * min(inner) / 2
 
 
-def _drag_base(p, cx, cy, path, pause_ms=30):
+def _drag_base(p, cx, cy, path, hold=1.0, pause_ms=30):
     """Grab the base at (cx, cy), move through `path` (CSS px), sampling the base's motion at
-    each point; returns the samples (the pointer is still down)."""
+    each point, then hold the last point for `hold` s of simulated time (the run may be slower
+    than real time on a busy machine); returns the samples (the pointer is still down)."""
     p.page.mouse.move(cx, cy)
     p.page.mouse.down()
     samples = []
@@ -868,6 +869,7 @@ def _drag_base(p, cx, cy, path, pause_ms=30):
         p.page.mouse.move(x, y)
         p.page.wait_for_timeout(pause_ms)
         samples.append(p.js("({t: multipendulum.state.sim.t, ...multipendulum.state.sim.baseMotion()})"))
+    p.wait(f"multipendulum.state.sim.t > {samples[-1]['t'] + hold}", timeout=30)
     return samples
 
 
@@ -878,8 +880,8 @@ def test_dragging_the_pivot_shakes_the_running_chain_and_its_work_balances(open_
     # Out to the right, a fast jerk back and forth, then hold 0.6 m to the right.
     path = [(cx + k * 0.06 * scale, cy) for k in range(1, 11)] + [(cx - 0.5 * scale, cy + 0.3 * scale),
                                                                    (cx + 0.8 * scale, cy)] * 3
-    path += [(cx + 0.6 * scale, cy)] * 40
-    samples = _drag_base(p, cx, cy, path)
+    path += [(cx + 0.6 * scale, cy)] * 5
+    samples = _drag_base(p, cx, cy, path, hold=1.5)
     assert p.js("multipendulum.state.playing"), "grabbing the base runs the chain"
     assert p.js("multipendulum.state.drag.base") is True
     p.page.mouse.up()
@@ -899,7 +901,8 @@ def test_dragging_the_cart_pulls_it_along_its_rail(open_page):
     cx, cy, scale = _stage(p)
     count, x_before = _cart_pixels(p)
     assert count > 200
-    _drag_base(p, cx, cy, [(cx + k * 0.05 * scale, cy - k * 2) for k in range(1, 11)] + [(cx + 0.5 * scale, cy)] * 40)
+    _drag_base(p, cx, cy, [(cx + k * 0.05 * scale, cy - k * 2) for k in range(1, 11)] + [(cx + 0.5 * scale, cy)] * 5,
+               hold=2.0)
     p.page.mouse.up()
     terms = p.js("multipendulum.state.terms")
     # Pulled along the rail only (the pointer also went up), towards the pointer's x.

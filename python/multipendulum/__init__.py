@@ -26,8 +26,8 @@ from .errors import InputError, IntegrationError
 from .modes import NormalModes, linearize, normal_modes
 from .sweeps import open_flip_map, open_indicator_map, sweep, sweep_flip_map, sweep_indicator_map
 
-# The compiled core's version (the workspace's, kept equal to pyproject's): right also when the
-# package is imported from a source tree without install metadata (bench/.venv does so).
+#: The package's version: the compiled core's (the workspace's, kept equal to pyproject's), right
+#: also when the package is imported from a source tree without install metadata (bench/.venv does so).
 __version__ = _core.__version__
 
 __all__ = [
@@ -58,6 +58,10 @@ def __getattr__(name: str) -> _typing.Any:
         "loads_scenario": ("scenario", "loads_scenario"),
         "ScenarioError": ("scenario", "ScenarioError"),
         "Results": ("results", "Results"),
+        # Notebook widgets need anywidget (the `widget` extra); without it these raise an
+        # ImportError saying how to install it.
+        "widget": ("notebook", "widget"),
+        "show": ("_notebook", "show"),
     }
     if name in lazy:
         import importlib

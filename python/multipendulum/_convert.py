@@ -55,3 +55,20 @@ def is_float(text: str) -> bool:
     except ValueError:
         return False
     return True
+
+
+def check_single(sol: Any, what: str) -> None:
+    """Refuse anything but one run: a :class:`~multipendulum.Solution` of one trajectory or
+    loaded :class:`Results`. A batch run (theta of shape (B, T, N)) is refused saying how to
+    get one of its trajectories."""
+    theta = getattr(sol, "theta", None)
+    if theta is None or not hasattr(sol, "t"):
+        raise InputError(f"{what} takes a multipendulum Solution or loaded Results, got {type(sol).__name__}")
+    shape = np.shape(theta)
+    if len(shape) == 3:
+        raise InputError(
+            f"{what} takes one run, but this Solution is a batch of {shape[0]} runs (theta shape {shape}); "
+            f"pick one trajectory b by simulating it alone, mp.simulate(chain, theta0[b], omega0[b], ...), "
+            "which gives the batch's row b bit for bit")
+    if len(shape) != 2:
+        raise InputError(f"{what} takes one run with theta of shape (T, N), got shape {shape}")

@@ -56,3 +56,9 @@ def _fsync_dir(directory: Path) -> None:
             os.fsync(fd)
         finally:
             os.close(fd)
+
+
+def web_dir() -> Path:
+    """The browser viewer's files, installed with the package (``multipendulum/web``: what
+    ``multipendulum serve`` serves and the notebook widgets inline)."""
+    return Path(__file__).resolve().parent / "web"

@@ -24,7 +24,10 @@ if TYPE_CHECKING:
     from pathlib import Path
 
     from ._files import PathLike
+    from ._notebook import Player
 
+#: The integrators' names, as the core states them: ``"rk4"``, ``"dop853"`` (the default),
+#: ``"gauss4"``, ``"gauss6"``; each one's facts are in :data:`METHOD_INFO`.
 METHODS = tuple(_core.METHODS)
 #: Per method, as the core states it: declared ``order``, ``symplectic``, ``implicit``,
 #: ``adaptive``, ``needs_dt`` and the ``forms`` it integrates (the first its default).
@@ -315,6 +318,14 @@ class Solution:
         # Below ~0.05/s over this span the separation is not exponential: regular motion.
         until = trustworthy_until(lam if lam > 0.05 else 0.0, tolerance, eps)
         return until, f"largest Lyapunov exponent {lam:.3g}/s{note}"
+
+    def show(self, **options: Any) -> Player:
+        """Play this run in a notebook cell, drawn by the browser viewer's code, without encoding
+        a video: :func:`multipendulum.show` (its ``options``: ``fps``, ``speed``, ``playing``,
+        ``loop``, ``height``). Needs anywidget (``pip install 'multipendulum[widget]'``)."""
+        from ._notebook import show  # on use only: anywidget and ipywidgets are slow to import
+
+        return show(self, **options)
 
     def __repr__(self) -> str:
         return (f"Solution(method={self.method!r}, n={self.n}, outputs={self.t.size}, "

@@ -26,6 +26,7 @@ from urllib.parse import unquote, urlsplit
 
 import numpy as np
 
+from ._files import web_dir
 from .errors import InputError
 
 __all__ = ["web_dir", "scenario_json", "make_server", "parse_host", "parse_port", "WASM_NAME"]
@@ -47,11 +48,6 @@ _TYPES = {
 _POLICY = ("default-src 'self'; script-src 'self' 'wasm-unsafe-eval'; style-src 'self'; "
            "img-src 'self' data:; connect-src 'self'; object-src 'none'; base-uri 'none'; "
            "form-action 'none'; frame-ancestors 'self'")
-
-
-def web_dir() -> Path:
-    """The viewer's files, installed with the package."""
-    return Path(__file__).resolve().parent / "web"
 
 
 def _plain(value: Any) -> Any:

@@ -39,7 +39,13 @@ export async function loadEngine(url = new URL("./multipendulum.wasm", import.me
     throw new Error(`cannot load ${url}: HTTP ${response.status} (run \`make build\` to build it)`);
   }
   // Not instantiateStreaming: some static servers do not send application/wasm.
-  const { instance } = await WebAssembly.instantiate(await response.arrayBuffer(), {});
+  return engineFromBytes(await response.arrayBuffer());
+}
+
+/** The engine from the module's bytes (an ArrayBuffer or a view of one: the notebook widget
+ *  gets them from Python, not from a URL); reads the core's facts as `loadEngine` does. */
+export async function engineFromBytes(bytes) {
+  const { instance } = await WebAssembly.instantiate(bytes, {});
   const engine = new Engine(instance.exports);
   const facts = engine.facts();
   METHODS = facts.method_order;
