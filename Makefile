@@ -9,7 +9,7 @@ WEB     := python/multipendulum/web
 CHROMIUM ?= /usr/bin/chromium
 export PATH := $(HOME)/.cargo/bin:$(PATH)
 
-.PHONY: setup build build-test wasm browser demo test test-rust test-python fuzz bench clean
+.PHONY: setup build build-test wasm browser demo test test-rust test-python fuzz bench docs clean
 
 $(PY):
 	python3 -m venv $(VENV)
@@ -77,6 +77,18 @@ fuzz: setup
 BENCH_ARGS ?= $(if $(QUICK),--quick)
 bench: setup
 	bench/run $(BENCH_ARGS)
+
+# The documentation site (mkdocs.yml) into out/site: the package as `build` leaves it, plus
+# pyproject's `docs` extra installed by name (read with tomllib; pip does not rebuild the
+# package), then a strict build that runs the tutorial notebooks: any warning fails it. Needs no
+# network once the extra is installed.
+DOCS_EXTRA = import sys, pathlib; t = __import__("tomllib" if sys.version_info >= (3, 11) else "tomli"); \
+	print("\n".join(t.loads(pathlib.Path("pyproject.toml").read_text())["project"]["optional-dependencies"]["docs"]))
+docs: build
+	@mkdir -p out
+	$(PY) -c '$(DOCS_EXTRA)' > out/docs-requirements.txt
+	$(PY) -m pip install -q -r out/docs-requirements.txt
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict -d out/site
 
 clean:
 	rm -rf $(VENV) target out $(WEB)/multipendulum.wasm

@@ -75,9 +75,10 @@ def _cart(cart: Optional[Cart]) -> Optional[Tuple[float, float]]:
 
 class Chain:
     """A planar chain of N rigid links hanging from a pivot (fixed at the origin, moved by a
-    prescribed motion in a run, or carried by a cart).
+    prescribed motion in a run, or carried by a cart). SI units; the arrays have one entry per
+    link, link 1 hanging from the pivot.
 
-    Parameters (SI units; arrays of length N, link 1 hangs from the pivot):
+    Parameters:
         lengths: pivot-to-next-joint length of each link, > 0.
         masses: mass of each link, >= 0.
         com: distance of each link's centre of mass from its own pivot (default: ``lengths``,
@@ -88,10 +89,11 @@ class Chain:
             joint torque ``u_i = -b_i w_i`` with ``w_i = omega_i - omega_{i-1}`` (joint 1 joins
             the base to link 1), acting ``+u_i`` on link i and ``-u_i`` on link i-1.
         friction: Coulomb joint friction ``f_i >= 0`` (N m), regularised
-            ``u_i = -f_i tanh(w_i / friction_velocity)``: below ``friction_velocity`` (rad/s,
-            > 0, default 1e-3) it acts as a steep viscous damping ``f_i / v_s``; smaller values
-            are closer to dry friction (a joint that sticks) and make the equations stiffer
-            (smaller steps, or the implicit methods).
+            ``u_i = -f_i tanh(w_i / friction_velocity)``: below ``friction_velocity`` it acts
+            as a steep viscous damping ``f_i / v_s``; smaller values are closer to dry friction
+            (a joint that sticks) and make the equations stiffer (smaller steps, or the
+            implicit methods).
+        friction_velocity: the friction's regularisation rate ``v_s`` (rad/s, > 0, default 1e-3).
         cart: a :class:`Cart`: the pivot rides on a cart sliding along x (coordinates
             ``(x, theta)``, the cart first in the mass matrix and the accelerations).
 

@@ -40,6 +40,7 @@ from ._env import PendulumEnv, PendulumVectorEnv
 from .compat import AcrobotCompatEnv, AcrobotCompatVectorEnv
 from .tasks import Acrobot, CartPole
 
+#: The steps of an episode of every registered id (``max_episode_steps``; a vector env's default).
 EPISODE_STEPS = 500
 
 
