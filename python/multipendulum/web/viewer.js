@@ -60,7 +60,7 @@ const ui = {
   message: $("message"), name: $("name"), status: $("status"),
   t: $("t"), energy: $("energy"), error: $("error"), errorLabel: $("error-label"), steps: $("steps"), fps: $("fps"),
   kinetic: $("kinetic"), potential: $("potential"), work: $("work"), dissipated: $("dissipated"), cartX: $("cart-x"),
-  pivot: $("pivot"), phaseLink: $("phase-link"), base: $("base"),
+  pivot: $("pivot"), phaseLink: $("phase-link"),
 };
 
 const state = {
