@@ -31,6 +31,8 @@ const INPUT_ERROR = -1;
 // The signal forms of crates/wasm (SIGNAL_*).
 const SIGNAL = { constant: 0, sinusoid: 1, linear: 2, cubic: 3 };
 const TERMS = 12;
+/** Integration time per animation frame (ms): beyond it a run shows in slow motion instead. */
+export const FRAME_BUDGET_MS = 10;
 
 /** Load the module (next to this file unless `url` says otherwise). */
 export async function loadEngine(url = new URL("./multipendulum.wasm", import.meta.url)) {
@@ -245,6 +247,16 @@ export class Simulation {
     if (status === DONE) return true;
     if (status === BUDGET) return false;
     throw new EngineError(this.engine.lastError(), status === INPUT_ERROR ? "input" : "integration");
+  }
+
+  /** Advance towards time `t` for at most `budgetMs` of wall time, in chunks of steps sized
+   *  by N (a frame's share of the page or the widget); true once reached. */
+  advanceWithin(t, budgetMs = FRAME_BUDGET_MS) {
+    const chunk = Math.max(1, Math.floor(4000 / this.n));
+    const deadline = performance.now() + budgetMs;
+    let reached = false;
+    while (!reached && performance.now() < deadline) reached = this.advanceTo(t, chunk);
+    return reached;
   }
 
   get t() { return this.x.mp_sim_t(this.handle); }

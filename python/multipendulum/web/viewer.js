@@ -7,7 +7,6 @@ import { ChainView, fitCanvas, PhasePlot, reach } from "./draw.js";
 import { fromToml, parseInline, parseToml, ScenarioError, toInline } from "./scenario.js";
 
 const PLOT_POINTS = 1500;
-const FRAME_BUDGET_MS = 10; // integration time per frame; beyond it the run slows down instead
 const DEG = Math.PI / 180;
 // The most links the page shows (the core's fact, read once the engine has loaded).
 let MAX_LINKS = 0;
@@ -355,16 +354,6 @@ function setPlaying(on) {
   ui.play.textContent = state.playing ? "❚❚ Pause" : "▶ Play";
 }
 
-/** Bring the simulation to the display clock within the frame's time budget. */
-function advance(target) {
-  const sim = state.sim;
-  const chunk = Math.max(1, Math.floor(4000 / sim.n));
-  const deadline = performance.now() + FRAME_BUDGET_MS;
-  let reached = false;
-  while (!reached && performance.now() < deadline) reached = sim.advanceTo(target, chunk);
-  return reached;
-}
-
 function guarded(fn) {
   try {
     fn();
@@ -399,7 +388,7 @@ function frame(now) {
   if (state.playing && state.sim) {
     state.clock += wall * state.setup.speed;
     guarded(() => {
-      const reached = advance(state.clock);
+      const reached = state.sim.advanceWithin(state.clock);
       state.lagging = !reached;
       if (!reached) state.clock = state.sim.t; // no catching up: slow motion instead
     });

@@ -8,7 +8,6 @@ import { ADAPTIVE, EngineError, engineFromBytes, LIMITS } from "./engine.js";
 import { ChainView, reach } from "./draw.js";
 import { arrayBuffer, element, seconds, Ticker } from "./cell.js";
 
-const FRAME_BUDGET_MS = 10; // integration time per frame, as the page: beyond it, slow motion
 // The values Python sets that make a new run (`_restart`: Python's `restart()`).
 const PARAMETERS = ["theta0", "omega0", "g", "damping", "friction", "method", "dt", "rtol", "atol", "cart_x0", "cart_v0", "_restart"];
 
@@ -120,20 +119,11 @@ class Runner {
     this.record();
   }
 
-  /** Bring the run to the display clock within the frame's budget (as the page). */
-  advance(target) {
-    const chunk = Math.max(1, Math.floor(4000 / this.sim.n));
-    const deadline = performance.now() + FRAME_BUDGET_MS;
-    let reached = false;
-    while (!reached && performance.now() < deadline) reached = this.sim.advanceTo(target, chunk);
-    return reached;
-  }
-
   tick(wall) {
     if (!this.sim || this.failed || !this.model.get("playing")) return;
     this.clock += wall * this.model.get("speed");
     this.guarded(() => {
-      const reached = this.advance(this.clock);
+      const reached = this.sim.advanceWithin(this.clock);
       this.lagging = !reached;
       if (!reached) this.clock = this.sim.t; // no catching up: slow motion instead
     });
