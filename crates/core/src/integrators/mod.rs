@@ -14,6 +14,7 @@ pub mod dense;
 pub mod dop853;
 mod dop853_tableau;
 pub mod gauss;
+pub mod lanes;
 pub mod rk4;
 
 use serde::{Deserialize, Serialize};

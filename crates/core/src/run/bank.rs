@@ -1,9 +1,8 @@
 //! A bank of ideal chains stepped with rk4 in SIMD lanes, their joint torques held over each call:
 //! the route [`super::live::Steppers`] takes for an ideal chain (no losses, no cart, a fixed
 //! pivot) on rk4's Lagrangian form. Copies go eight to a group of lanes; the groups run in
-//! parallel. The step is [`crate::integrators::Rk4`]'s on [`crate::dynamics::lanes`]'
-//! accelerations, its product-sums fused as the flip kernel's, so a copy agrees with its per-copy
-//! [`super::live::Stepper`] to round-off (the lanes' own `sin`/`cos`, the fused operations); each
+//! parallel. The step is [`crate::integrators::lanes::Rk4Lanes`]'s, its product-sums fused as
+//! the flip kernel's, so a copy agrees with its per-copy [`super::live::Stepper`] to round-off (the lanes' own `sin`/`cos`, the fused operations); each
 //! copy's bits depend neither on the other copies nor on the number of threads, and are the same
 //! on the AVX-512, AVX2 and portable builds.
 //!
@@ -11,9 +10,10 @@
 //! constant, and what rk4 gives the work integral `int tau . omega dt` in exact arithmetic.
 use super::energy::EnergyBalance;
 use super::simulate::Settings;
-use crate::dynamics::lanes::{accelerations, energies, LaneScratch, LaneSingular};
+use crate::dynamics::lanes::energies;
 use crate::dynamics::system::NON_FINITE;
 use crate::error::{Error, Result};
+use crate::integrators::lanes::Rk4Lanes;
 use crate::model::Chain;
 use crate::par::*;
 use crate::trig::lanes::{Lane, Path, LANES};
@@ -58,10 +58,8 @@ struct Group {
     /// `[theta (N), omega (N)]`, each a lane.
     y: Vec<Lane>,
     tau: Vec<Lane>,
-    k: [Vec<Lane>; 4],
-    tmp: Vec<Lane>,
     start: Vec<Lane>,
-    scratch: LaneScratch,
+    rk: Rk4Lanes,
 }
 
 /// What a copy keeps besides its lane.
@@ -90,10 +88,8 @@ impl Bank {
         let group = Group {
             y: lanes(2 * n),
             tau: lanes(n),
-            k: std::array::from_fn(|_| lanes(2 * n)),
-            tmp: lanes(2 * n),
             start: lanes(n),
-            scratch: LaneScratch::new(n),
+            rk: Rk4Lanes::new(n),
         };
         let groups = vec![group; count.div_ceil(LANES)];
         let mut bank = Bank {
@@ -347,7 +343,7 @@ fn run_group_body(
             if active.iter().all(|&a| a == 0.0) {
                 break;
             }
-            match rk4(chain, g, dt, &active) {
+            match g.rk.step(chain, &mut g.y, &g.tau, dt, &active) {
                 Ok(nonfinite) => {
                     for j in 0..copies.len() {
                         if nonfinite[j] {
@@ -390,73 +386,4 @@ fn run_group_body(
             .sum::<f64>();
     }
     first_failure
-}
-
-/// One rk4 step of every active lane, as `Rk4::step` (stages, then the weighted sum), leaving
-/// the inactive lanes as they were. `Err((stage, _))` if an active lane's pivot failed (no lane
-/// moves then); else the active lanes whose new state is not finite (they do not move).
-#[inline(always)]
-fn rk4(
-    chain: &Chain,
-    g: &mut Group,
-    dt: f64,
-    active: &Lane,
-) -> std::result::Result<[bool; LANES], (usize, LaneSingular)> {
-    let n = chain.n();
-    let half = 0.5 * dt;
-    let Group {
-        y,
-        tau,
-        k,
-        tmp,
-        scratch,
-        ..
-    } = g;
-    // Loops over whole lanes by iterators (no bounds checks), so they vectorise.
-    for stage in 0..4 {
-        {
-            let src: &[Lane] = if stage == 0 { &y[..] } else { &tmp[..] };
-            let (head, tail) = k[stage].split_at_mut(n);
-            head.copy_from_slice(&src[n..2 * n]);
-            accelerations(chain, &src[..n], &src[n..2 * n], tau, tail, scratch, active)
-                .map_err(|s| (stage, s))?;
-        }
-        if stage < 3 {
-            let h = if stage < 2 { half } else { dt };
-            for ((t, yv), kv) in tmp.iter_mut().zip(y.iter()).zip(k[stage].iter()) {
-                for i in 0..LANES {
-                    t[i] = h.mul_add(kv[i], yv[i]);
-                }
-            }
-        }
-    }
-    let sixth = dt / 6.0;
-    // `x * 0` is 0 for a finite x and NaN otherwise: the lanes' finiteness without branches.
-    let mut poison = [0.0; LANES];
-    let [k1, k2, k3, k4] = &*k;
-    for (((((t, yv), a), b), c), d) in tmp
-        .iter_mut()
-        .zip(y.iter())
-        .zip(k1.iter())
-        .zip(k2.iter())
-        .zip(k3.iter())
-        .zip(k4.iter())
-    {
-        for i in 0..LANES {
-            t[i] = sixth.mul_add(2.0f64.mul_add(b[i] + c[i], a[i]) + d[i], yv[i]);
-            poison[i] += t[i] * 0.0;
-        }
-    }
-    let (mut keep, mut nonfinite) = ([false; LANES], [false; LANES]);
-    for i in 0..LANES {
-        let finite = poison[i] == 0.0;
-        keep[i] = active[i] > 0.0 && finite;
-        nonfinite[i] = active[i] > 0.0 && !finite;
-    }
-    for (yv, t) in y.iter_mut().zip(tmp.iter()) {
-        for i in 0..LANES {
-            yv[i] = if keep[i] { t[i] } else { yv[i] };
-        }
-    }
-    Ok(nonfinite)
 }
