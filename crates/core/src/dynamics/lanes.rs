@@ -140,13 +140,15 @@ fn recursion(
     // Gravity and the centripetal pull of the links above.
     let (mut cu, mut su) = ([0.0; LANES], [0.0; LANES]);
     for a in 0..n {
-        let (sa, ca) = (&s.sin[a], &s.cos[a]);
+        let (sa, ca, ta, w, ha, la) = (s.sin[a], s.cos[a], tau[a], omega[a], h[a], l[a]);
+        let mut f = [0.0; LANES];
         for i in 0..LANES {
-            out[a][i] = tau[a][i] - h[a] * (g * sa[i] + sa[i] * cu[i] - ca[i] * su[i]);
-            let w2l = omega[a][i] * omega[a][i] * l[a];
+            f[i] = ta[i] - ha * (g * sa[i] + sa[i] * cu[i] - ca[i] * su[i]);
+            let w2l = w[i] * w[i] * la;
             cu[i] += w2l * ca[i];
             su[i] += w2l * sa[i];
         }
+        out[a] = f;
     }
     // Backward elimination, with the links below folded in.
     let (mut cd, mut sd) = ([0.0; LANES], [0.0; LANES]);
@@ -157,54 +159,59 @@ fn recursion(
         [0.0; LANES],
         [0.0; LANES],
     );
-    let mut singular = None;
-    let mut bad = [false; LANES];
+    // Per lane, the first link (from the bottom) whose pivot failed, or -1: kept without a branch
+    // per link, so the passes stay vectorised.
+    let mut worst = [-1.0f64; LANES];
     for a in (0..n).rev() {
-        let la = l[a];
-        let mut ok = [true; LANES];
+        let (la, ha, da) = (l[a], h[a], d[a]);
+        // The link's lanes in locals: stores into the scratch's buffers would otherwise keep
+        // LLVM from vectorising across lanes (it cannot tell the buffers apart).
+        let (cos, sin, w, force) = (s.cos[a], s.sin[a], omega[a], out[a]);
+        let link = a as f64;
+        let (mut uxs, mut uys, mut invs, mut rhos) = ([0.0; LANES], [0.0; LANES], [0.0; LANES], [0.0; LANES]);
         for i in 0..LANES {
-            let (nx, ny) = (s.cos[a][i], s.sin[a][i]);
+            let (nx, ny) = (cos[i], sin[i]);
             let (gnx, gny) = (gxx[i] * nx + gxy[i] * ny, gxy[i] * nx + gyy[i] * ny);
-            let pivot = d[a] - la * la * (nx * gnx + ny * gny);
-            ok[i] = pivot > PIVOT_TOL * d[a];
+            let pivot = da - la * la * (nx * gnx + ny * gny);
+            let fail = (active[i] > 0.0) & !(pivot > PIVOT_TOL * da);
+            worst[i] = if fail { worst[i].max(link) } else { worst[i] };
             let inv = 1.0 / pivot;
-            let (ux, uy) = (h[a] * nx - la * gnx, h[a] * ny - la * gny);
-            let extra = -l[a] * (ny * cd[i] - nx * sd[i]);
-            let w2h = omega[a][i] * omega[a][i] * h[a];
+            let (ux, uy) = (ha * nx - la * gnx, ha * ny - la * gny);
+            let extra = -la * (ny * cd[i] - nx * sd[i]);
+            let w2h = w[i] * w[i] * ha;
             cd[i] += w2h * nx;
             sd[i] += w2h * ny;
-            let rho = out[a][i] + extra - la * (nx * wx[i] + ny * wy[i]);
+            let rho = force[i] + extra - la * (nx * wx[i] + ny * wy[i]);
             gxx[i] += ux * ux * inv;
             gxy[i] += ux * uy * inv;
             gyy[i] += uy * uy * inv;
             wx[i] += ux * rho * inv;
             wy[i] += uy * rho * inv;
-            s.ux[a][i] = ux;
-            s.uy[a][i] = uy;
-            s.dinv[a][i] = inv;
-            out[a][i] = rho;
+            uxs[i] = ux;
+            uys[i] = uy;
+            invs[i] = inv;
+            rhos[i] = rho;
         }
-        if failed(&ok, active, &mut bad) && singular.is_none() {
-            singular = Some(a);
-        }
+        (s.ux[a], s.uy[a], s.dinv[a], out[a]) = (uxs, uys, invs, rhos);
     }
     // Forward substitution.
     let (mut px, mut py) = ([0.0; LANES], [0.0; LANES]);
     for a in 0..n {
+        let (la, rho, ux, uy, inv, cos, sin) = (l[a], out[a], s.ux[a], s.uy[a], s.dinv[a], s.cos[a], s.sin[a]);
+        let mut x = [0.0; LANES];
         for i in 0..LANES {
-            let xa = (out[a][i] - (s.ux[a][i] * px[i] + s.uy[a][i] * py[i])) * s.dinv[a][i];
-            out[a][i] = xa;
-            px[i] += l[a] * s.cos[a][i] * xa;
-            py[i] += l[a] * s.sin[a][i] * xa;
+            let xa = (rho[i] - (ux[i] * px[i] + uy[i] * py[i])) * inv[i];
+            x[i] = xa;
+            px[i] += la * cos[i] * xa;
+            py[i] += la * sin[i] * xa;
         }
+        out[a] = x;
     }
-    match singular {
-        Some(a) => Err(LaneSingular {
-            link: Singular(a),
-            lanes: bad,
-        }),
-        None => Ok(()),
+    let first = worst.iter().copied().fold(-1.0, f64::max);
+    if first < 0.0 {
+        return Ok(());
     }
+    Err(LaneSingular { link: Singular(first as usize), lanes: std::array::from_fn(|i| worst[i] >= 0.0) })
 }
 
 /// Kinetic and total energy of every lane: `T = 1/2 sum_a d_a w_a^2 + sum_{b<a} l_b h_a w_a w_b
