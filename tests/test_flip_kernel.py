@@ -1,5 +1,6 @@
-"""The SIMD flip-map kernel (crates/core/src/flipkernel.rs) behind mp.flip_times for the undriven
-double pendulum, against the per-trajectory rk4 path it replaces (MULTIPENDULUM_FLIP_KERNEL=scalar)."""
+"""The SIMD flip-map kernels (crates/core/src/chaos/flipkernel.rs) behind mp.flip_times for the
+undriven double pendulum and for undriven ideal chains of any other N (in lanes), against the
+per-trajectory rk4 path they replace (MULTIPENDULUM_FLIP_KERNEL=scalar)."""
 import os
 
 import numpy as np
@@ -115,3 +116,65 @@ def test_an_unknown_route_is_refused(monkeypatch):
     monkeypatch.setenv(SWITCH, "gpu")
     with pytest.raises(mp.InputError, match=f"{SWITCH} must be one of auto, scalar, portable, avx2, avx512, got \"gpu\""):
         mp.flip_times(CHAINS["point"], [1.0, 2.0])
+
+
+# ---- chains of any N, in lanes
+
+def chains(n):
+    lengths = 1.0 - 0.05 * np.arange(n)
+    masses = 1.0 + 0.3 * (np.arange(n) % 3)
+    return {
+        "point": mp.Chain(lengths, masses),
+        "rods": mp.Chain.rods(lengths, masses),
+        "links": mp.Chain(lengths, masses, com=0.4 * lengths, inertia=0.02 * lengths, g=3.7),
+    }
+
+
+def released(n, side=31):
+    """A grid of theta_1 and theta_N from rest, the links between at 0.3 rad."""
+    x = np.linspace(-np.pi, np.pi, side)
+    X, Y = np.meshgrid(x, x)
+    th = np.full(X.shape + (n,), 0.3)
+    th[..., 0], th[..., -1] = X, Y
+    return th.reshape(-1, n)
+
+
+@pytest.mark.parametrize("n", [1, 3, 6])
+@pytest.mark.parametrize("kind", ["point", "rods", "links"])
+def test_chains_of_any_n_flip_in_lanes_as_on_the_per_trajectory_path(monkeypatch, n, kind):
+    chain = chains(n)[kind]
+    th0 = released(n)
+    # A single pendulum flips only from a fast start (omega^2 > 4 g / l from the bottom).
+    om0 = np.random.default_rng(n).uniform(-1, 1, th0.shape) * (8.0 if n == 1 else 1.0)
+    monkeypatch.setenv(SWITCH, "auto")
+    fast = mp.flip_times(chain, th0, om0, t_max=4.0)
+    monkeypatch.setenv(SWITCH, "scalar")
+    slow = mp.flip_times(chain, th0, om0, t_max=4.0)
+    # Chaos amplifies the last-bit differences of the lanes' sin/cos: late flips may differ.
+    assert np.mean(np.isfinite(fast) == np.isfinite(slow)) > 0.98
+    early = (fast < 1.0) & (slow < 1.0) & (slow > 0)
+    assert early.sum() > 30
+    np.testing.assert_allclose(fast[early], slow[early], rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(fast == 0, slow == 0)
+
+
+def test_lanes_give_the_same_bits_on_every_path_and_alone(monkeypatch):
+    chain = chains(4)["rods"]
+    th0 = released(4, 25)
+    monkeypatch.setenv(SWITCH, "portable")
+    ref = mp.flip_times(chain, th0, t_max=6.0)
+    assert np.isfinite(ref).any() and np.isinf(ref).any()
+    ran = []
+    for path in ("avx2", "avx512"):
+        monkeypatch.setenv(SWITCH, path)
+        try:
+            got = mp.flip_times(chain, th0, t_max=6.0)
+        except mp.InputError as e:
+            assert "not supported by this CPU" in str(e)
+            continue
+        ran.append(path)
+        np.testing.assert_array_equal(got, ref)
+    assert ran == expected_simd_paths(cpu_flags())
+    monkeypatch.setenv(SWITCH, "auto")
+    singles = np.array([mp.flip_times(chain, th0[i], t_max=6.0) for i in range(0, len(th0), 37)])
+    np.testing.assert_array_equal(singles, ref[::37])

@@ -1,4 +1,6 @@
-//! The flip-map kernel: first-flip times of many undriven double pendulums at once.
+//! The flip-map kernels: first-flip times of many undriven double pendulums at once, and of
+//! undriven ideal chains of any other N ([`first_flips_chain`], on
+//! [`crate::integrators::lanes::Rk4Lanes`] with the same refilling of lanes).
 //!
 //! Trajectories advance in lanes (structure of arrays: `theta1[LANES]`, `theta2[LANES]`, ...) with
 //! plain loops over fixed-size arrays that LLVM vectorises across trajectories. A lane whose
@@ -26,6 +28,7 @@ use super::flip_time;
 use crate::trig::lanes::{sin_cos, Lane, Path, LANES};
 use crate::dynamics::{Singular, PIVOT_TOL};
 use crate::error::{Error, Result};
+use crate::integrators::lanes::Rk4Lanes;
 use crate::model::Chain;
 use crate::par::*;
 use crate::dynamics::system::NON_FINITE;
@@ -284,6 +287,186 @@ pub(crate) fn first_flips_double(
     Ok(parts.concat())
 }
 
+/// The lanes of one chunk of an N-link chain's rows: `y = [theta (N), omega (N)]`, each a lane.
+struct ChainLanes {
+    y: Vec<Lane>,
+    y0: Vec<Lane>,
+    tau: Vec<Lane>,
+    rk: Rk4Lanes,
+    step: [u64; LANES],
+    id: [usize; LANES],
+    active: Lane,
+    next: usize,
+}
+
+impl ChainLanes {
+    /// As [`Lanes::load`], for N links: the next row not already flipped into `lane`, or the
+    /// lane idle at rest.
+    #[inline(always)]
+    fn load(&mut self, lane: usize, theta0: &[f64], omega0: &[f64], links: &[usize], out: &mut [f64]) {
+        let n = self.tau.len();
+        while self.next < out.len() {
+            let j = self.next;
+            self.next += 1;
+            let (th, om) = (&theta0[n * j..n * (j + 1)], &omega0[n * j..n * (j + 1)]);
+            if links.iter().any(|&k| th[k].abs() >= PI) {
+                out[j] = 0.0;
+                continue;
+            }
+            for a in 0..n {
+                (self.y[a][lane], self.y[n + a][lane]) = (th[a], om[a]);
+            }
+            (self.step[lane], self.id[lane], self.active[lane]) = (0, j, 1.0);
+            return;
+        }
+        for m in self.y.iter_mut() {
+            m[lane] = 0.0;
+        }
+        self.active[lane] = 0.0;
+    }
+}
+
+/// [`run_chunk`] for an undriven ideal chain of any N, stepped by [`Rk4Lanes`]: `out[j]` for the
+/// rows `theta0[N j..N (j + 1)]`, `omega0[..]`; `links` the links whose flip counts, in order
+/// (the first one over the top is the one timed, as on the scalar path).
+#[inline(always)]
+fn run_chunk_chain(
+    chain: &Chain,
+    theta0: &[f64],
+    omega0: &[f64],
+    steps: u64,
+    dt: f64,
+    links: &[usize],
+    stop: &Watch,
+    out: &mut [f64],
+) -> Result<()> {
+    let n = chain.n();
+    let lanes = |k| vec![[0.0; LANES]; k];
+    let mut s = ChainLanes {
+        y: lanes(2 * n),
+        y0: lanes(2 * n),
+        tau: lanes(n),
+        rk: Rk4Lanes::new(n),
+        step: [0; LANES],
+        id: [0; LANES],
+        active: [0.0; LANES],
+        next: 0,
+    };
+    let mut live = 0;
+    for lane in 0..LANES {
+        s.load(lane, theta0, omega0, links, out);
+        live += usize::from(s.active[lane] > 0.0);
+    }
+    let mut rounds = 0u64;
+    while live > 0 {
+        rounds += 1;
+        if rounds % 1024 == 0 {
+            stop.check(s.step[0] as f64 * dt)?;
+        }
+        s.y0.copy_from_slice(&s.y);
+        let nonfinite = match s.rk.step(chain, &mut s.y, &s.tau, dt, &s.active) {
+            Ok(nonfinite) => nonfinite,
+            Err((stage, bad)) => {
+                let i = (0..LANES).find(|&i| bad.lanes[i]).unwrap_or(0);
+                let t = s.step[i] as f64 * dt + [0.0, 0.5, 0.5, 1.0][stage] * dt;
+                return Err(Error::integration(t, bad.link.reason()));
+            }
+        };
+        if let Some(i) = (0..LANES).find(|&i| nonfinite[i]) {
+            return Err(Error::integration((s.step[i] + 1) as f64 * dt, NON_FINITE));
+        }
+        let mut event = false;
+        for i in 0..LANES {
+            s.step[i] += 1;
+            let mut flip = false;
+            for &k in links {
+                flip |= s.y[k][i].abs() >= PI;
+            }
+            event |= (s.active[i] > 0.0) & (flip | (s.step[i] >= steps));
+        }
+        if !event {
+            continue;
+        }
+        for i in 0..LANES {
+            if !(s.active[i] > 0.0) {
+                continue;
+            }
+            let t = (s.step[i] - 1) as f64 * dt;
+            if let Some(&k) = links.iter().find(|&&k| s.y[k][i].abs() >= PI) {
+                // On the step's cubic Hermite interpolant (theta' = omega), as the scalar path.
+                out[s.id[i]] = flip_time(t, dt, (s.y0[k][i], s.y0[n + k][i]), (s.y[k][i], s.y[n + k][i]));
+            } else if s.step[i] >= steps {
+                out[s.id[i]] = f64::INFINITY;
+            } else {
+                continue;
+            }
+            s.load(i, theta0, omega0, links, out);
+            live -= usize::from(!(s.active[i] > 0.0));
+        }
+    }
+    Ok(())
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,fma")]
+#[allow(clippy::too_many_arguments)]
+unsafe fn run_chunk_chain_avx512(chain: &Chain, th: &[f64], om: &[f64], steps: u64, dt: f64, links: &[usize], stop: &Watch, out: &mut [f64]) -> Result<()> {
+    run_chunk_chain(chain, th, om, steps, dt, links, stop, out)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+#[allow(clippy::too_many_arguments)]
+unsafe fn run_chunk_chain_avx2(chain: &Chain, th: &[f64], om: &[f64], steps: u64, dt: f64, links: &[usize], stop: &Watch, out: &mut [f64]) -> Result<()> {
+    run_chunk_chain(chain, th, om, steps, dt, links, stop, out)
+}
+
+#[allow(clippy::too_many_arguments)]
+fn run_chunk_chain_on(path: Path, chain: &Chain, th: &[f64], om: &[f64], steps: u64, dt: f64, links: &[usize], stop: &Watch, out: &mut [f64]) -> Result<()> {
+    assert!(path.available(), "the {} kernel needs a CPU feature this one lacks", path.name());
+    match path {
+        // SAFETY: the CPU has the feature (checked just above).
+        #[cfg(target_arch = "x86_64")]
+        Path::Avx512 => unsafe { run_chunk_chain_avx512(chain, th, om, steps, dt, links, stop, out) },
+        #[cfg(target_arch = "x86_64")]
+        Path::Avx2 => unsafe { run_chunk_chain_avx2(chain, th, om, steps, dt, links, stop, out) },
+        _ => run_chunk_chain(chain, th, om, steps, dt, links, stop, out),
+    }
+}
+
+/// First-flip times of an undriven ideal chain of any N in lanes ([`Rk4Lanes`]: the recursion
+/// of [`crate::dynamics::lanes`], the lanes' `sin`/`cos`, fused product-sums), with the same
+/// rules as `chaos::first_flips`, which validates the input and calls this. Agrees with the
+/// per-trajectory path to round-off; the same bits on every path and any number of threads.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn first_flips_chain(
+    chain: &Chain,
+    theta0: &[f64],
+    omega0: &[f64],
+    steps: u64,
+    dt: f64,
+    link: Option<usize>,
+    path: Path,
+    stop: &Watch,
+) -> Result<Vec<f64>> {
+    let n = chain.n();
+    let links: Vec<usize> = link.map_or_else(|| (0..n).collect(), |k| vec![k]);
+    // As many rows per task as the double pendulum's: a task's lanes idle only at its end, while
+    // its last trajectories finish, so fewer rows would waste more of the lanes.
+    let parts: Vec<Vec<f64>> = theta0
+        .par_chunks(n * CHUNK)
+        .zip(omega0.par_chunks(n * CHUNK))
+        .map(|(th, om)| {
+            let mut out = vec![0.0; th.len() / n];
+            stop.check(0.0)?;
+            run_chunk_chain_on(path, chain, th, om, steps, dt, &links, stop, &mut out)?;
+            stop.add_units(out.len() as u64);
+            Ok(out)
+        })
+        .collect::<Result<_>>()?;
+    Ok(parts.concat())
+}
+
 /// The states of every row after `steps` rk4 steps of `dt`, flipped or not (for the tests).
 #[cfg(test)]
 fn advance(chain: &Chain, theta0: &[f64], omega0: &[f64], steps: u64, dt: f64, path: Path) -> Vec<[f64; 4]> {
@@ -424,6 +607,83 @@ mod tests {
                 assert_eq!(slow[0], 0.0);
             }
         }
+    }
+
+    fn chains_of(n: usize) -> Vec<Chain> {
+        let l: Vec<f64> = (0..n).map(|a| 1.0 - 0.05 * a as f64).collect();
+        let m: Vec<f64> = (0..n).map(|a| 1.0 + 0.3 * (a % 3) as f64).collect();
+        let c: Vec<f64> = l.iter().map(|x| 0.4 * x).collect();
+        let i: Vec<f64> = l.iter().map(|x| 0.02 * x).collect();
+        vec![
+            Chain::new(&l, &m, None, None, 9.81).unwrap(),
+            Chain::rods(&l, &m, 9.81).unwrap(),
+            Chain::new(&l, &m, Some(&c), Some(&i), 3.7).unwrap(),
+        ]
+    }
+
+    /// Rows of a grid of `theta_0` and `theta_last` from rest (the others at 0.3 rad).
+    fn released(n: usize, side: usize) -> (Vec<f64>, Vec<f64>) {
+        let (mut th, mut om) = (Vec::new(), Vec::new());
+        for i in 0..side {
+            for j in 0..side {
+                let mut row = vec![0.3; n];
+                row[0] = -PI + 2.0 * PI * i as f64 / (side - 1) as f64;
+                row[n - 1] = -PI + 2.0 * PI * j as f64 / (side - 1) as f64;
+                th.extend(row);
+                om.extend(vec![0.0; n]);
+            }
+        }
+        (th, om)
+    }
+
+    #[test]
+    fn chains_of_any_n_flip_as_on_the_scalar_path_where_the_motion_is_regular() {
+        for n in [1, 3, 5] {
+            for chain in chains_of(n) {
+                for link in [None, Some(0), Some(n - 1)] {
+                    let (th, om) = released(n, 31);
+                    let fast = first_flips_chain(&chain, &th, &om, 300, 0.01, link, Path::best(), &go()).unwrap();
+                    let slow = first_flips_scalar(&chain, &th, &om, 3.0, 0.01, link, &Builtin::None, &go()).unwrap();
+                    let same = fast.iter().zip(&slow).filter(|(a, b)| a.is_finite() == b.is_finite()).count();
+                    assert!(same as f64 >= 0.99 * fast.len() as f64, "N = {n}: {same} of {}", fast.len());
+                    let early: Vec<_> = fast.iter().zip(&slow).filter(|(a, b)| **a < 1.5 && **b < 1.5).collect();
+                    assert!(early.len() > 30, "N = {n}: {}", early.len());
+                    for (a, b) in early {
+                        assert!((a - b).abs() < 1e-9, "N = {n}: {a} vs {b}");
+                    }
+                    assert_eq!((fast[0], slow[0]), (0.0, 0.0)); // starting beyond pi
+                    assert!(fast.iter().any(|t| t.is_infinite()) || n == 1 || link.is_some());
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn chains_of_any_n_give_the_same_bits_on_every_path_and_any_chunking() {
+        let n = 4;
+        let (th, om) = released(n, 23);
+        for chain in chains_of(n) {
+            let reference = first_flips_chain(&chain, &th, &om, 400, 0.01, None, Path::Portable, &go()).unwrap();
+            assert!(reference.iter().any(|t| t.is_finite() && *t > 0.0) && reference.iter().any(|t| t.is_infinite()));
+            for path in Path::ALL.into_iter().filter(|p| p.available()) {
+                let got = first_flips_chain(&chain, &th, &om, 400, 0.01, None, path, &go()).unwrap();
+                assert!(got.iter().zip(&reference).all(|(a, b)| a.to_bits() == b.to_bits()), "{path:?}");
+            }
+            // A row's time does not depend on its neighbours: each row alone, from its middle on.
+            for j in [0, 7, 100, 300] {
+                let one = first_flips_chain(&chain, &th[n * j..n * (j + 1)], &om[n * j..n * (j + 1)], 400, 0.01, None, Path::best(), &go())
+                    .unwrap();
+                assert_eq!(one[0].to_bits(), reference[j].to_bits(), "row {j}");
+            }
+        }
+    }
+
+    #[test]
+    fn a_chain_that_blows_up_is_an_integration_error_with_its_time() {
+        let chain = &chains_of(3)[0];
+        let e = first_flips_chain(chain, &[0.1; 6], &[0.0, 0.0, 0.0, 1e200, 0.0, 0.0], 100, 0.01, None, Path::best(), &go())
+            .unwrap_err();
+        assert!(matches!(e, Error::Integration { .. }), "{e}");
     }
 
     #[test]

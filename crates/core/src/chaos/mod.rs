@@ -221,9 +221,10 @@ pub fn flip_energy_threshold(chain: &Chain, link: Option<usize>) -> Result<f64> 
 /// a row that starts beyond pi: 0. Runs in parallel; each result is independent of the number
 /// of threads.
 ///
-/// The undriven double pendulum goes through the SIMD kernel of [`flipkernel`] (the same
-/// steps, with its own `sin`/`cos`, so it agrees with the per-trajectory path to round-off);
-/// everything else, or `MULTIPENDULUM_FLIP_KERNEL=scalar`, through [`first_flips_scalar`].
+/// Undriven ideal chains go through the SIMD kernels of [`flipkernel`] (the same steps, with
+/// their own `sin`/`cos`, so they agree with the per-trajectory path to round-off): the double
+/// pendulum's closed form, any other N in lanes. Everything else, or
+/// `MULTIPENDULUM_FLIP_KERNEL=scalar`, goes through [`first_flips_scalar`].
 /// `watch` counts trajectories done and stops the work between chunks of steps.
 #[allow(clippy::too_many_arguments)]
 pub fn first_flips(
@@ -237,10 +238,14 @@ pub fn first_flips(
     watch: &Watch,
 ) -> Result<Vec<f64>> {
     let steps = check_flips(chain, theta0, omega0, t_max, dt, link)?;
-    // The kernel is the ideal double pendulum's; losses or a cart take the general path.
-    if chain.n() == 2 && matches!(torque, Builtin::None) && chain.is_ideal() {
+    // The kernels are the undriven ideal chain's (the double pendulum's own, any other N in
+    // lanes); losses, a cart or a torque take the general path.
+    if matches!(torque, Builtin::None) && chain.is_ideal() {
         if let Some(path) = flipkernel::requested()? {
-            return flipkernel::first_flips_double(chain, theta0, omega0, steps, dt, link, path, watch);
+            return match chain.n() {
+                2 => flipkernel::first_flips_double(chain, theta0, omega0, steps, dt, link, path, watch),
+                _ => flipkernel::first_flips_chain(chain, theta0, omega0, steps, dt, link, path, watch),
+            };
         }
     }
     first_flips_scalar(chain, theta0, omega0, t_max, dt, link, torque, watch)
