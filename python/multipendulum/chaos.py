@@ -32,7 +32,7 @@ if TYPE_CHECKING:
 Vary = Tuple[str, Integer, str, Integer]
 
 __all__ = ["ZeroOneResult", "zero_one_test", "INDICATORS", "IndicatorResult", "indicator", "megno", "fli", "sali", "gali", "IndicatorMap",
-           "indicator_map", "EnsembleResult", "ensemble", "PoincareSection", "poincare", "plot_poincare", "LyapunovResult", "lyapunov", "trustworthy_until", "flip_energy_threshold", "flip_times", "flip_map", "FlipMap"]
+           "indicator_map", "EnsembleResult", "ensemble", "PoincareSection", "poincare", "plot_poincare", "LyapunovResult", "lyapunov", "trustworthy_until", "flip_energy_threshold", "flip_times", "certified_flip_times", "flip_map", "FlipMap"]
 
 
 def flip_energy_threshold(chain: Chain, link: Optional[Integer] = None) -> float:
@@ -74,6 +74,33 @@ class FlipMap:
     allowed: Union[npt.NDArray[np.bool_], ZarrArray]
     t_max: float
     threshold: float
+    #: A certified map's (``certify=True``): True where the flip decision, or the time by more
+    #: than ``time_tolerance``, changed when the step was halved; None for a map not certified.
+    uncertain: Union[None, npt.NDArray[np.bool_], ZarrArray] = None
+    #: The time tolerance (s) a certified map was judged with; None for a map not certified.
+    time_tolerance: Optional[float] = None
+
+
+def certified_flip_times(chain: Chain, theta0: npt.ArrayLike, omega0: Optional[npt.ArrayLike] = None,
+                         t_max: float = 10.0, dt: float = 0.01, link: Optional[Integer] = None,
+                         torque: Optional[TorqueLike] = None, time_tolerance: Optional[float] = None,
+                         progress: Progress = None) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.bool_], float]:
+    """:func:`flip_times` at ``dt`` and again at ``dt / 2``: ``(times, uncertain, tolerance)``,
+    the times at ``dt`` and, per initial state, whether it is uncertain: the two runs disagree on
+    whether it flips by ``t_max``, or on when by more than ``time_tolerance`` (s; default one step
+    ``dt``), the tolerance used. Costs three times :func:`flip_times`."""
+    check_chain(chain)
+    th0 = as_state(theta0, "theta0", chain.n)
+    om0 = np.zeros_like(th0) if omega0 is None else as_state(omega0, "omega0", chain.n)
+    if th0.shape != om0.shape:
+        raise InputError(f"theta0 and omega0 must have the same shape, got {th0.shape} and {om0.shape}")
+    spec, _ = normalise_torque(torque, None, chain.n)
+    tolerance = None if time_tolerance is None else as_float(time_tolerance, "time_tolerance")
+    with reporter(progress, "certified flip times") as report:
+        times, uncertain, used = _core.certified_flips(
+            chain._c, th0.ravel(), om0.ravel(), as_float(t_max, "t_max"), dt=as_float(dt, "dt"),
+            link=_link(link, chain.n), torque=core_torque(spec, False), tolerance=tolerance, progress=report)
+    return times.reshape(th0.shape[:-1]), uncertain.reshape(th0.shape[:-1]), used
 
 
 def flip_threshold(chain: Chain, link: Optional[Integer], torque: Optional[TorqueLike]) -> float:
@@ -112,7 +139,8 @@ def _grid(yb: npt.NDArray[np.float64], xb: npt.NDArray[np.float64], vary: Tuple[
 def flip_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_max: float = 10.0, dt: float = 0.01,
              vary: Vary = ("theta", 0, "theta", 1), base_theta: Optional[npt.ArrayLike] = None,
              base_omega: Optional[npt.ArrayLike] = None, link: Optional[Integer] = None,
-             torque: Optional[TorqueLike] = None, progress: Progress = None) -> FlipMap:
+             torque: Optional[TorqueLike] = None, certify: bool = False, time_tolerance: Optional[float] = None,
+             progress: Progress = None) -> FlipMap:
     """Flip-time map over a grid of two initial values (radians or rad/s).
 
     ``vary=(kind_x, index_x, kind_y, index_y)`` names the two varied quantities, each ``"theta"``
@@ -120,6 +148,11 @@ def flip_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_max: float = 10
     the initial state is ``base_theta`` / ``base_omega`` (default 0). Under a ``torque`` the chain
     can gain energy, so no cell is marked impossible (``threshold = -inf``). ``progress`` as for
     :func:`lyapunov`.
+
+    ``certify=True`` computes every cell again at ``dt / 2`` (as :func:`certified_flip_times`)
+    and fills ``uncertain``: the cells whose flip decision, or time by more than
+    ``time_tolerance`` (s; default one step ``dt``), depends on the step. The times are still
+    those at ``dt``.
     """
     check_chain(chain)
     _check_progress(progress)
@@ -132,10 +165,25 @@ def flip_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_max: float = 10
     om_base = np.zeros(n) if base_omega is None else as_state(base_omega, "base_omega", n)
     vary = _check_vary(vary, n)
     theta0, omega0 = _grid(y, x, vary, th_base, om_base)
-    times = flip_times(chain, theta0, omega0, t_max=t_max, dt=dt, link=link, torque=torque, progress=progress)
+    uncertain, tolerance = None, None
+    if check_certify(certify, time_tolerance):
+        times, uncertain, tolerance = certified_flip_times(chain, theta0, omega0, t_max=t_max, dt=dt, link=link,
+                                                           torque=torque, time_tolerance=time_tolerance,
+                                                           progress=progress)
+    else:
+        times = flip_times(chain, theta0, omega0, t_max=t_max, dt=dt, link=link, torque=torque, progress=progress)
     threshold = flip_threshold(chain, link, torque)
     allowed = cast("npt.NDArray[np.bool_]", chain.energy(theta0, omega0) >= threshold)  # theta0 has a grid's axes
-    return FlipMap(x, y, times, allowed, float(t_max), threshold)
+    return FlipMap(x, y, times, allowed, float(t_max), threshold, uncertain, tolerance)
+
+
+def check_certify(certify: object, time_tolerance: Optional[float]) -> bool:
+    """Whether a map is certified; a tolerance given without ``certify`` is refused."""
+    if not isinstance(certify, (bool, np.bool_)):
+        raise InputError(f"certify must be True or False, got {certify!r}")
+    if time_tolerance is not None and not certify:
+        raise InputError("time_tolerance applies to a certified map: pass certify=True with it")
+    return bool(certify)
 
 @dataclass(frozen=True)
 class IndicatorMap:

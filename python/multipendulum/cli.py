@@ -535,6 +535,11 @@ def _add_map_options(p: argparse.ArgumentParser, zarr_what: str) -> None:
 def _add_flip_options(p: argparse.ArgumentParser, only: str = "") -> None:
     p.add_argument("--link", type=int, metavar="K", help=f"time the flips of link K only (default: any link){only}")
     p.add_argument("--linear", action="store_true", help=f"linear colour scale in time (default logarithmic){only}")
+    p.add_argument("--certify", action="store_true",
+                   help="compute every cell again at dt/2 and mark (magenta) and count the cells whose flip "
+                        f"decision, or time by more than --time-tolerance, changes (three times the work){only}")
+    p.add_argument("--time-tolerance", type=float, metavar="SECONDS",
+                   help=f"with --certify: how far a flip time may move at dt/2 (default: one step dt){only}")
 
 
 def _fractal_axis(text: str, n: int, option: str):
@@ -549,11 +554,11 @@ def _fractal_axis(text: str, n: int, option: str):
 
 
 def _fractal_counts(fm, rows: int = 256):
-    """Counts of flipped, never-flipped and forbidden states, a block of rows at a time (the map
-    may be a Zarr store larger than memory)."""
+    """Counts of flipped, never-flipped, forbidden and (a certified map's) uncertain states, a
+    block of rows at a time (the map may be a Zarr store larger than memory)."""
     import numpy as np
 
-    flipped = never = forbidden = 0
+    flipped = never = forbidden = uncertain = 0
     for r in range(0, fm.y.size, rows):
         t = np.asarray(fm.times[r:r + rows])
         a = np.asarray(fm.allowed[r:r + rows], dtype=bool)
@@ -561,7 +566,9 @@ def _fractal_counts(fm, rows: int = 256):
         flipped += int(fin.sum())
         never += int((~fin & a).sum())
         forbidden += int((~a).sum())
-    return flipped, never, forbidden
+        if fm.uncertain is not None:
+            uncertain += int(np.asarray(fm.uncertain[r:r + rows], dtype=bool).sum())
+    return flipped, never, forbidden, uncertain
 
 
 #: The most rk4 steps (initial states x steps each) a flip-time map may take on this machine:
@@ -581,19 +588,19 @@ def _fractal_budget(args, n: int, t_max: float) -> None:
     size = args.size
     cells = float(size) * size
     if args.zarr is None:
-        # The map's times (8 bytes) and flags (1) for every state, and one block's initial
-        # states, energies and times while it is computed.
+        # The map's times (8 bytes) and flags (1, and 1 more certified) for every state, and one
+        # block's initial states, energies and times while it is computed.
         block = max(_BLOCK_STATES, size) * (2 * n + 3) * 8.0
-        mp._core.check_memory(cells * 9.0 + block, f"a flip-time map of {size} x {size} initial states",
+        mp._core.check_memory(cells * (10.0 if args.certify else 9.0) + block, f"a flip-time map of {size} x {size} initial states",
                               "use a smaller --size, or --zarr PATH to write the map chunk by chunk "
                               "(with --dask ADDRESS to compute it on a cluster)")
     if args.dask is None and math.isfinite(t_max) and t_max > 0 and math.isfinite(args.dt) and args.dt > 0:
         steps = math.ceil(t_max / args.dt)
-        work = cells * steps
+        work = cells * steps * (3 if args.certify else 1)  # certified: again at dt/2
         if work > MAX_LOCAL_MAP_STEPS:
             raise mp.InputError(
-                f"a flip-time map of {size} x {size} initial states with up to t_max / dt = {steps:.4g} steps "
-                f"each is up to {work:.3g} rk4 steps, more than the {MAX_LOCAL_MAP_STEPS:.0e} one machine is "
+                f"a{' certified' if args.certify else ''} flip-time map of {size} x {size} initial states with up "
+                f"to t_max / dt = {steps:.4g} steps each is up to {work:.3g} rk4 steps, more than the {MAX_LOCAL_MAP_STEPS:.0e} one machine is "
                 "given (hours of work); use a smaller --size, a shorter --t-max or a larger --dt, or spread it "
                 "over a cluster with --dask ADDRESS")
 
@@ -608,14 +615,14 @@ def _flip_map_in_blocks(chain, x, y, report, **kwargs):
 
     rows = max(1, min(y.size, -(-max(_BLOCK_STATES, x.size * y.size // 100) // x.size)))
     done = Steps(report, total=x.size * y.size)
-    times, allowed, threshold = [], [], None
+    parts = []
     for r in range(0, y.size, rows):
-        part = mp.flip_map(chain, x, y[r:r + rows], **kwargs)
-        times.append(part.times)
-        allowed.append(part.allowed)
-        threshold = part.threshold
-        done.add(part.times.size)
-    return mp.FlipMap(x, y, np.concatenate(times), np.concatenate(allowed), float(kwargs["t_max"]), threshold)
+        parts.append(mp.flip_map(chain, x, y[r:r + rows], **kwargs))
+        done.add(parts[-1].times.size)
+    last = parts[-1]
+    join = lambda name: np.concatenate([getattr(p, name) for p in parts])  # noqa: E731
+    return mp.FlipMap(x, y, join("times"), join("allowed"), last.t_max, last.threshold,
+                      None if last.uncertain is None else join("uncertain"), last.time_tolerance)
 
 
 def _map_vary(args, n: int, what: str):
@@ -679,13 +686,19 @@ def _cmd_fractal(args) -> int:
     link = None if args.link is None else args.link - 1
     _fractal_budget(args, n, t_max)
     x, y = _map_axes(args, vary)
+    if args.time_tolerance is not None and not args.certify:
+        raise mp.InputError("--time-tolerance applies to a certified map: add --certify")
     kwargs = dict(t_max=t_max, dt=args.dt, vary=vary, base_theta=scenario.theta0, base_omega=scenario.omega0,
-                  link=link)
+                  link=link, certify=args.certify, time_tolerance=args.time_tolerance)
     # Arguments checked on no states, so that a bad one fails here and not in the first block.
-    mp.flip_times(chain, np.zeros((0, n)), t_max=t_max, dt=args.dt, link=link)
+    if args.certify:
+        mp.certified_flip_times(chain, np.zeros((0, n)), t_max=t_max, dt=args.dt, link=link,
+                                time_tolerance=args.time_tolerance)
+    else:
+        mp.flip_times(chain, np.zeros((0, n)), t_max=t_max, dt=args.dt, link=link)
     title = scenario.name or args.scenario.stem
     _say(args, f"{title}: flip-time map of {args.size} x {args.size} initial states, N = {n}, "
-               f"t_max = {t_max:g} s, dt = {args.dt:g} s")
+               f"t_max = {t_max:g} s, dt = {args.dt:g} s" + (" (certified: again at dt/2)" if args.certify else ""))
     if scenario.torque is not None:
         _say(args, "  note: the scenario's torque is not applied; the map is of the free chain")
     start = time.perf_counter()
@@ -701,10 +714,13 @@ def _cmd_fractal(args) -> int:
         bar(1.0)
     wall = time.perf_counter() - start
     total = args.size * args.size
-    flipped, never, forbidden = _fractal_counts(fm)
+    flipped, never, forbidden, uncertain = _fractal_counts(fm)
     _say(args, f"  flipped {100 * flipped / total:.1f}%, no flip by t_max {100 * never / total:.1f}%, "
                f"no flip possible (energy below E_flip = {fm.threshold:.4g} J) {100 * forbidden / total:.1f}%; "
                f"wall time {wall:.3g} s")
+    if fm.uncertain is not None:
+        _say(args, f"  uncertain: {uncertain} of {total} cells ({100 * uncertain / total:.1f}%) change their flip "
+                   f"decision, or their time by more than {fm.time_tolerance:g} s, at dt/2 = {args.dt / 2:g} s")
     if args.zarr is not None:
         _say(args, f"wrote {args.zarr}")
     path = plot_flip_map(fm, args.output, chain=chain, vary=vary, base_theta=scenario.theta0,
@@ -822,7 +838,8 @@ def _cmd_atlas(args) -> int:
         args.t_max = args.t_end
         args.dt = FLIP_DT if args.dt is None else args.dt
         return _cmd_fractal(args)
-    for option, given in (("--link", args.link is not None), ("--linear", args.linear)):
+    for option, given in (("--link", args.link is not None), ("--linear", args.linear), ("--certify", args.certify),
+                          ("--time-tolerance", args.time_tolerance is not None)):
         if given:
             raise mp.InputError(f"{option} is for --indicator flip only (a flip-time map)")
     scenario = load_scenario(args.scenario)

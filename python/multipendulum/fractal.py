@@ -37,6 +37,7 @@ NEVER_COLOR = "white"          # could flip, but had not by t_max (viridis has n
 FORBIDDEN_COLOR = "#cfcfcf"    # energy too low for any flip
 HATCH_COLOR = "#8c8c8c"
 BOUND_COLOR = "#e4002b"        # the energy-bound curve: a red no viridis shade comes near
+UNCERTAIN_COLOR = "#e7298a"    # a certified map's cells that change with the step: magenta, no viridis shade
 LOG_DECADES = 2.0              # log colour scale from t_max / 100 to t_max
 _MAX_PIXELS = 2048             # plot at most this many samples along an axis (maps of 4096^2)
 _BOUND_SAMPLES = 600           # the energy field for the bound curve, per axis
@@ -149,7 +150,8 @@ def plot_flip_map(fm: FlipMap, path: Optional[PathLike] = None, chain: Optional[
     (the structure of a flip map spans decades), else linearly. Grids larger than 2048 along an
     axis are thinned for the picture (and the percentages in the legend are of the pixels shown).
     The energy bound holds for the free chain: a map made with a driving torque should not be
-    read by it.
+    read by it. A certified map (``certify=True``) draws its uncertain cells in magenta, counted
+    in the legend.
     """
     import matplotlib
     from matplotlib.colors import LogNorm, Normalize
@@ -172,6 +174,7 @@ def plot_flip_map(fm: FlipMap, path: Optional[PathLike] = None, chain: Optional[
     flipped = np.isfinite(times)
     never = ~flipped & allowed
     forbidden = ~allowed
+    uncertain = None if fm.uncertain is None else np.asarray(fm.uncertain[::sy, ::sx], dtype=bool)
     from .plotting import fit_title
 
     fig = Figure(figsize=(size, size * 0.86), dpi=dpi)
@@ -188,6 +191,10 @@ def plot_flip_map(fm: FlipMap, path: Optional[PathLike] = None, chain: Optional[
     cmap = matplotlib.colormaps[CMAP].with_extremes(bad=NEVER_COLOR)
     image = ax.imshow(np.ma.masked_array(times, ~flipped), origin="lower", extent=extent, cmap=cmap, norm=norm,
                       interpolation="antialiased", interpolation_stage="rgba", aspect="auto")
+    if uncertain is not None and uncertain.any():
+        ax.imshow(np.ma.masked_array(np.ones_like(times), ~uncertain), origin="lower", extent=extent,
+                  cmap=matplotlib.colors.ListedColormap([UNCERTAIN_COLOR]), interpolation="nearest", aspect="auto",
+                  zorder=1.5)
     cb = fig.colorbar(image, cax=cax, extend="min" if below else "neither")
     cb.set_label("time of the first flip (s)")
     if log:
@@ -228,10 +235,14 @@ def plot_flip_map(fm: FlipMap, path: Optional[PathLike] = None, chain: Optional[
         Line2D([], [], color=BOUND_COLOR, lw=1.6,
                label=f"energy bound $E = E_\\mathrm{{flip}}$ = {fm.threshold:.4g} J"),
     ]
+    if uncertain is not None:
+        handles.insert(1, Patch(facecolor=UNCERTAIN_COLOR, edgecolor="0.3", lw=0.6,
+                                label=f"uncertain: changes at dt / 2 (by > {fm.time_tolerance:g} s) ({frac(uncertain)})"))
     fig.legend(handles=handles, loc="lower center", bbox_to_anchor=(0.46, 0.0), ncol=2, fontsize=8,
                frameon=False, handlelength=1.8, columnspacing=1.4)
     fig.suptitle(heading, fontsize=11, y=0.975)
-    subtitle = f"{y.size} x {x.size} initial states, {frac(flipped)} flipped by {t_max:g} s"
+    subtitle = f"{y.size} x {x.size} initial states, {frac(flipped)} flipped by {t_max:g} s" \
+        + ("" if uncertain is None else f", {frac(uncertain)} uncertain")
     fixed = _fixed_values(chain, (kx, ix, ky, iy), base_theta, base_omega)
     ax.set_title(subtitle + (f"; {fixed}" if fixed else ""), fontsize=8, color="0.3")
     if path is None:

@@ -43,7 +43,7 @@ import importlib.util
 import math
 import os
 from types import ModuleType
-from typing import TYPE_CHECKING, Any, Callable, Dict, Iterator, Mapping, Optional, Tuple, Union, cast
+from typing import TYPE_CHECKING, Any, Callable, Dict, Iterator, List, Mapping, Optional, Tuple, Union, cast
 
 import numpy as np
 import numpy.typing as npt
@@ -54,7 +54,8 @@ from ._convert import Integer
 from ._progress import check as _check_progress
 from ._progress import reporter
 from ._torque import TorqueLike
-from .chaos import FlipMap, IndicatorMap, Vary, _check_vary, _grid, flip_threshold, flip_times, indicator_fn
+from .chaos import (FlipMap, IndicatorMap, Vary, _check_vary, _grid, certified_flip_times, check_certify, flip_threshold,
+                    flip_times, indicator_fn)
 from .errors import InputError
 
 if TYPE_CHECKING:
@@ -301,6 +302,17 @@ def _map_times_block(yb: npt.NDArray[np.float64], xb: npt.NDArray[np.float64], c
     return flip_times(chain, theta0, omega0, t_max=t_max, dt=dt, link=link, torque=torque)
 
 
+def _map_certified_block(yb: npt.NDArray[np.float64], xb: npt.NDArray[np.float64], chain: Chain,
+                         vary: Tuple[str, int, str, int], th_base: npt.NDArray[np.float64],
+                         om_base: npt.NDArray[np.float64], t_max: float, dt: float, link: Optional[Integer],
+                         torque: Optional[TorqueLike], time_tolerance: Optional[float]) -> npt.NDArray[np.float64]:
+    # A certified block's times and uncertain flags (as 0 or 1) along a last axis of 2.
+    theta0, omega0 = _grid(yb, xb, vary, th_base, om_base)
+    times, uncertain, _ = certified_flip_times(chain, theta0, omega0, t_max=t_max, dt=dt, link=link, torque=torque,
+                                               time_tolerance=time_tolerance)
+    return np.stack([times, uncertain.astype(np.float64)], axis=-1)
+
+
 def _map_allowed_block(yb: npt.NDArray[np.float64], xb: npt.NDArray[np.float64], chain: Chain,
                        vary: Tuple[str, int, str, int], th_base: npt.NDArray[np.float64],
                        om_base: npt.NDArray[np.float64], threshold: float) -> npt.NDArray[np.bool_]:
@@ -344,12 +356,15 @@ def _map_grid(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, base_theta: Opti
 def sweep_flip_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_max: float = 10.0, dt: float = 0.01,
                    vary: Vary = ("theta", 0, "theta", 1), base_theta: Optional[npt.ArrayLike] = None,
                    base_omega: Optional[npt.ArrayLike] = None, link: Optional[Integer] = None,
-                   torque: Optional[TorqueLike] = None, chunks: Union[None, Integer, Tuple[Integer, Integer]] = None,
+                   torque: Optional[TorqueLike] = None, certify: bool = False,
+                   time_tolerance: Optional[float] = None, chunks: Union[None, Integer, Tuple[Integer, Integer]] = None,
                    scheduler: Scheduler = None, zarr: Optional[PathLike] = None,
                    progress: Progress = None) -> FlipMap:
     """:func:`multipendulum.flip_map` on Dask, for grids too large for one process.
 
-    Same arguments and the same result (bit for bit) as ``flip_map``; in addition ``chunks``,
+    Same arguments and the same result (bit for bit) as ``flip_map``, a certified one too
+    (``certify``, ``time_tolerance``: its store gets an array ``uncertain`` and the attribute
+    ``time_tolerance``); in addition ``chunks``,
     ``scheduler`` and ``zarr`` as for :func:`sweep`. ``chunks`` is a number of rows (of ``y``)
     or ``(rows, columns)``; by default whole rows, about :data:`DEFAULT_CHUNK_SIZE` points per
     chunk. Each task builds its own part of the initial grid from ``x`` and ``y``, so the
@@ -367,34 +382,50 @@ def sweep_flip_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_max: floa
     x, y, th_base, om_base, vary, path = _map_grid(chain, x, y, base_theta, base_omega, vary, zarr)
     n = chain.n
     threshold = flip_threshold(chain, link, torque)
-    flip_times(chain, np.zeros((0, n)), t_max=t_max, dt=dt, link=link, torque=torque)  # checks, on no states
+    # The arguments checked on no states (and a certified map's tolerance as the core takes it).
+    certified = check_certify(certify, time_tolerance)
+    if certified:
+        tolerance: Optional[float] = certified_flip_times(chain, np.zeros((0, n)), t_max=t_max, dt=dt, link=link,
+                                                          torque=torque, time_tolerance=time_tolerance)[2]
+    else:
+        tolerance = None
+        flip_times(chain, np.zeros((0, n)), t_max=t_max, dt=dt, link=link, torque=torque)
     rows, cols = _chunk_shape(chunks, y.size, x.size)
     rows, cols = min(rows, y.size), min(cols, x.size)
     _check_chunks(rows, cols, n, -(-y.size // rows) * -(-x.size // cols))
     if path is None:
         # Gathered here: the times (8 bytes) and flags (1) of every cell, and Dask's pieces of them
-        # until they are joined.
-        _core.check_memory(float(x.size) * y.size * 9.0 * 2, f"gathering a flip map of {y.size} x {x.size} cells",
+        # until they are joined; certified, the uncertain flags (1) and the blocks' stacked pairs (16).
+        _core.check_memory(float(x.size) * y.size * (26.0 if certified else 9.0) * 2, f"gathering a flip map of {y.size} x {x.size} cells",
                            "pass zarr=PATH to write it chunk by chunk instead (multipendulum fractal --zarr)")
     Y = da.from_array(y, chunks=rows)
     X = da.from_array(x, chunks=cols)
-    kernel = functools.partial(_map_times_block, chain=chain, vary=vary, th_base=th_base, om_base=om_base,
-                               t_max=float(t_max), dt=float(dt), link=link, torque=torque)
+    block: Dict[str, Any] = dict(chain=chain, vary=vary, th_base=th_base, om_base=om_base, t_max=float(t_max), dt=float(dt),
+                 link=link, torque=torque)
     energy = functools.partial(_map_allowed_block, chain=chain, vary=vary, th_base=th_base, om_base=om_base,
                                threshold=threshold)
-    times = da.blockwise(kernel, "ij", Y, "i", X, "j", dtype=np.float64, meta=np.empty((0, 0)))
-    allowed = da.blockwise(energy, "ij", Y, "i", X, "j", dtype=bool, meta=np.empty((0, 0), dtype=bool))
+    arrays: List[Tuple[str, Any]]
+    if certified:
+        # One task per block runs both steps; the times and flags are its two slices.
+        kernel = functools.partial(_map_certified_block, time_tolerance=time_tolerance, **block)
+        both = da.blockwise(kernel, "ijk", Y, "i", X, "j", new_axes={"k": 2}, dtype=np.float64,
+                            meta=np.empty((0, 0, 0)))
+        arrays = [("times", both[..., 0]), ("uncertain", both[..., 1] != 0.0)]
+    else:
+        kernel = functools.partial(_map_times_block, **block)
+        arrays = [("times", da.blockwise(kernel, "ij", Y, "i", X, "j", dtype=np.float64, meta=np.empty((0, 0))))]
+    arrays.insert(1, ("allowed", da.blockwise(energy, "ij", Y, "i", X, "j", dtype=bool,
+                                              meta=np.empty((0, 0), dtype=bool))))
     if path is None:
         with _scheduler(scheduler) as how, reporter(progress, "flip map") as report:
-            t, a = _compute(dask, how, report, times, allowed)
-        return FlipMap(x, y, t, a, float(t_max), threshold)
+            got = _compute(dask, how, report, *(arr for _, arr in arrays))
+        return FlipMap(x, y, got[0], got[1], float(t_max), threshold, got[2] if certified else None, tolerance)
     attrs = {"t_max": float(t_max), "dt": float(dt), "threshold": threshold, "vary": list(vary),
              "base_theta": th_base.tolist(), "base_omega": om_base.tolist(),
-             "link": None if link is None else int(link), "chain": chain.to_dict()}
+             "link": None if link is None else int(link), "chain": chain.to_dict(), "time_tolerance": tolerance}
     with _fresh_store(path, "multipendulum.flip_map", attrs), _scheduler(scheduler) as how, \
             reporter(progress, "flip map") as report:
-        stores = [da.to_zarr(arr, path, component=name, compute=False)
-                  for name, arr in (("times", times), ("allowed", allowed))]
+        stores = [da.to_zarr(arr, path, component=name, compute=False) for name, arr in arrays]
         stores += [da.to_zarr(da.from_array(v, chunks=v.size), path, component=name, compute=False)
                    for name, v in (("x", x), ("y", y))]
         _compute(dask, how, report, *stores)
@@ -421,10 +452,14 @@ def open_flip_map(path: PathLike) -> FlipMap:
     """A flip-time map written by :func:`sweep_flip_map` (or ``multipendulum fractal --zarr``):
     ``x``, ``y`` read into memory; ``times`` and ``allowed`` left on disk as Zarr arrays."""
     group = _open_store(path, "multipendulum.flip_map", "a flip-time map")
-    # The store's members are arrays and its attributes numbers, as sweep_flip_map wrote them.
+    # The store's members are arrays and its attributes numbers, as sweep_flip_map wrote them; a
+    # certified map's also its flags and tolerance.
+    tolerance = group.attrs.get("time_tolerance")
     return FlipMap(np.asarray(cast("ZarrArray", group["x"])[:]), np.asarray(cast("ZarrArray", group["y"])[:]),
                    cast("ZarrArray", group["times"]), cast("ZarrArray", group["allowed"]),
-                   float(cast(float, group.attrs["t_max"])), float(cast(float, group.attrs["threshold"])))
+                   float(cast(float, group.attrs["t_max"])), float(cast(float, group.attrs["threshold"])),
+                   cast("ZarrArray", group["uncertain"]) if tolerance is not None else None,
+                   None if tolerance is None else float(cast(float, tolerance)))
 
 
 # ----------------------------------------------------------------------------------------------

@@ -13,6 +13,7 @@ use crate::{interruptible, slice, to_py, vec_out};
 pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(lyapunov, m)?)?;
     m.add_function(wrap_pyfunction!(first_flips, m)?)?;
+    m.add_function(wrap_pyfunction!(certified_flips, m)?)?;
     m.add_function(wrap_pyfunction!(flip_energy_threshold, m)?)?;
     m.add_function(wrap_pyfunction!(indicator, m)?)?;
     m.add_function(wrap_pyfunction!(indicators, m)?)?;
@@ -130,6 +131,35 @@ fn first_flips<'py>(
     })?
     .map_err(|e| to_py(py, e))?;
     Ok(vec_out(py, out))
+}
+
+/// [`first_flips`] certified: the times at `dt`, whether each row is uncertain (its flip
+/// decision or time moves when the step halves; `core::chaos::certified_flips`) and the time
+/// tolerance used.
+#[pyfunction]
+#[pyo3(signature = (chain, theta0, omega0, t_max, *, dt, link=None, torque=None, tolerance=None, progress=None))]
+#[allow(clippy::too_many_arguments)]
+fn certified_flips<'py>(
+    py: Python<'py>,
+    chain: &PyChain,
+    theta0: PyReadonlyArray1<'py, f64>,
+    omega0: PyReadonlyArray1<'py, f64>,
+    t_max: f64,
+    dt: f64,
+    link: Option<usize>,
+    torque: Option<PyRef<'py, PyTorque>>,
+    tolerance: Option<f64>,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<bool>>, f64)> {
+    let c = &chain.inner;
+    let torque = builtin_only(py, c.n(), torque.as_deref(), "flip maps")?;
+    let (theta0, omega0) = (slice("theta0", &theta0)?, slice("omega0", &omega0)?);
+    let watch = Watch::units(2 * (theta0.len() / c.n().max(1)) as u64);
+    let out = interruptible(py, &watch, progress.as_ref(), false, || {
+        core::chaos::certified_flips(c, theta0, omega0, t_max, dt, link, &torque, tolerance, &watch)
+    })?
+    .map_err(|e| to_py(py, e))?;
+    Ok((vec_out(py, out.times), PyArray1::from_vec(py, out.uncertain), out.tolerance))
 }
 
 #[pyfunction]

@@ -251,6 +251,46 @@ pub fn first_flips(
     first_flips_scalar(chain, theta0, omega0, t_max, dt, link, torque, watch)
 }
 
+/// A certified flip computation: [`first_flips`] at `dt` (the times reported) and again at
+/// `dt / 2`; a row is uncertain where the two disagree on whether it flips by `t_max`, or on
+/// when by more than `tolerance` (seconds; `None`: one step `dt`), so that its time or its very
+/// decision depends on the step. The energy bound is not consulted: a row that cannot flip never
+/// does at either step. `watch` counts each row twice.
+#[allow(clippy::too_many_arguments)]
+pub fn certified_flips(
+    chain: &Chain,
+    theta0: &[f64],
+    omega0: &[f64],
+    t_max: f64,
+    dt: f64,
+    link: Option<usize>,
+    torque: &Builtin,
+    tolerance: Option<f64>,
+    watch: &Watch,
+) -> Result<Certified> {
+    let tolerance = tolerance.unwrap_or(dt);
+    if !(tolerance.is_finite() && tolerance >= 0.0) {
+        return Err(Error::input(format!("time_tolerance must be >= 0 and finite, got {tolerance}")));
+    }
+    let coarse = first_flips(chain, theta0, omega0, t_max, dt, link, torque, watch)?;
+    let fine = first_flips(chain, theta0, omega0, t_max, 0.5 * dt, link, torque, watch)?;
+    let uncertain = coarse
+        .iter()
+        .zip(&fine)
+        .map(|(&a, &b)| a.is_finite() != b.is_finite() || (a.is_finite() && (a - b).abs() > tolerance))
+        .collect();
+    Ok(Certified { times: coarse, uncertain, tolerance })
+}
+
+/// What [`certified_flips`] finds: the times at `dt`, the uncertain rows, and the time
+/// tolerance they were judged with.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Certified {
+    pub times: Vec<f64>,
+    pub uncertain: Vec<bool>,
+    pub tolerance: f64,
+}
+
 /// Validate a flip computation's input; the number of steps.
 fn check_flips(chain: &Chain, theta0: &[f64], omega0: &[f64], t_max: f64, dt: f64, link: Option<usize>) -> Result<u64> {
     let n = chain.n();
@@ -387,6 +427,33 @@ mod tests {
         let rods = Chain::rods(&[1.0, 1.0], &[1.0, 1.0], g).unwrap();
         assert!((flip_energy_threshold(&rods, None).unwrap() + g).abs() < 1e-12);
         assert!((flip_energy_threshold(&point, Some(0)).unwrap() - g).abs() < 1e-12);
+    }
+
+    #[test]
+    fn certified_flips_mark_the_rows_whose_decision_or_time_moves_with_the_step() {
+        let chain = Chain::new(&[1.0, 1.0, 1.0], &[1.0, 1.0, 1.0], None, None, 9.81).unwrap();
+        let (mut th, mut om) = (Vec::new(), Vec::new());
+        for i in 0..40 {
+            th.extend([-3.0 + 0.15 * i as f64, 2.5, 0.3]);
+            om.extend([0.0; 3]);
+        }
+        let go = Watch::new();
+        let Certified { times, uncertain, tolerance } = certified_flips(&chain, &th, &om, 20.0, 0.02, None, &Builtin::None, None, &go).unwrap();
+        assert_eq!(tolerance, 0.02, "one step by default");
+        let coarse = first_flips(&chain, &th, &om, 20.0, 0.02, None, &Builtin::None, &go).unwrap();
+        let fine = first_flips(&chain, &th, &om, 20.0, 0.01, None, &Builtin::None, &go).unwrap();
+        assert!(times.iter().zip(&coarse).all(|(a, b)| a.to_bits() == b.to_bits()), "the times are the run at dt");
+        for j in 0..40 {
+            let differ = coarse[j].is_finite() != fine[j].is_finite() || (coarse[j] - fine[j]).abs() > 0.02;
+            assert_eq!(uncertain[j], differ, "row {j}: {} vs {}", coarse[j], fine[j]);
+        }
+        // Released high, over 20 s the triple pendulum's chaos moves some flips with the step, and
+        // a quick first flip is resolved.
+        assert!(uncertain.iter().any(|&u| u) && uncertain.iter().any(|&u| !u), "{uncertain:?}");
+        let tight = certified_flips(&chain, &th, &om, 20.0, 0.02, None, &Builtin::None, Some(0.0), &go).unwrap().uncertain;
+        assert!(tight.iter().zip(&uncertain).all(|(t, u)| *t || !*u));
+        let e = certified_flips(&chain, &th, &om, 20.0, 0.02, None, &Builtin::None, Some(f64::NAN), &go).unwrap_err();
+        assert_eq!(e.to_string(), "time_tolerance must be >= 0 and finite, got NaN");
     }
 
     #[test]
