@@ -1,0 +1,122 @@
+"""Flip times of chains of any N in SIMD lanes (issue 14): throughput per link-step against the
+double pendulum's own flip kernel and against the per-trajectory route, all in the same run.
+
+Run:  python bench/bench_lanes.py [--quick] [--json OUT.json] [--md OUT.md]
+(needs only multipendulum; without --json/--md the markdown section is printed).
+
+Workload, for each N: B equal point-mass chains (l = m = 1, g = 9.81) released from rest at
+angles drawn uniformly from [-0.5, 0.5] rad (a fixed seed): too little energy for any link to
+flip, so every trajectory takes all 1000 RK4 steps of dt = 0.01 while its flip is watched for,
+and the rate is the stepping rate (released high, chains of many links flip within a few hundred
+steps and the cost per trajectory of locating its flip would weigh in, differently for each N). N = 2 runs through the double pendulum's
+closed-form kernel, every other N through the lanes of `integrators::lanes::Rk4Lanes` (the O(N)
+recursion); the per-trajectory route is `MULTIPENDULUM_FLIP_KERNEL=scalar`. What is counted is
+the useful trajectory-steps (each trajectory's steps up to its flip), times N for link-steps;
+throughput is that count over the median wall time of alternating repeats on all cores.
+The issue's targets: per link-step within 2x of the flip kernel's for N = 2..16.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+import multipendulum as mp
+
+SWITCH = "MULTIPENDULUM_FLIP_KERNEL"
+DT, STEPS = 0.01, 1000
+NS = (2, 3, 4, 6, 8, 12, 16)
+TARGET = 2.0  # the flip kernel's per link-step rate over ours, at most
+
+
+def useful_steps(times):
+    t = np.asarray(times)
+    s = np.where(np.isfinite(t), np.clip(np.ceil(t / DT), 1, STEPS), STEPS)
+    return float(np.where(t == 0.0, 0, s).sum())
+
+
+def run(route, chain, th):
+    os.environ[SWITCH] = route
+    try:
+        t0 = time.perf_counter()
+        times = mp.flip_times(chain, th, t_max=STEPS * DT, dt=DT)
+        return times, time.perf_counter() - t0
+    finally:
+        os.environ.pop(SWITCH, None)
+
+
+def measure(n, b, b_scalar, rounds):
+    chain = mp.Chain(np.ones(n), np.ones(n))
+    th = np.random.default_rng(n).uniform(-0.5, 0.5, (b, n))
+    cases = {"lanes": ("auto", th), "per trajectory": ("scalar", th[:b_scalar])}
+    runs = {k: [] for k in cases}
+    steps = {}
+    for k, (route, states) in cases.items():
+        times, _ = run(route, chain, states)  # warm-up, and the useful steps of this route
+        steps[k] = useful_steps(times)
+    for r in range(rounds):
+        for k in (list(cases) if r % 2 == 0 else list(cases)[::-1]):
+            runs[k].append(run(cases[k][0], chain, cases[k][1])[1])
+    out = {"n": n, "b": b, "b_scalar": b_scalar}
+    for k in cases:
+        rate = steps[k] / float(np.median(runs[k]))
+        out[k] = {"traj_steps_per_s": rate, "link_steps_per_s": rate * n, "runs": runs[k]}
+    return out
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="fewer chains and repeats (under a minute)")
+    ap.add_argument("--json", type=Path)
+    ap.add_argument("--md", type=Path)
+    args = ap.parse_args(argv)
+    b, rounds = (2048, 3) if args.quick else (8192, 5)
+    rows = [measure(n, b, max(64, b // (4 * n)), rounds) for n in NS]
+    kernel = rows[0]["lanes"]["link_steps_per_s"]
+    for row in rows:
+        row["flip_kernel_over_ours"] = kernel / row["lanes"]["link_steps_per_s"]
+        row["lanes_over_per_trajectory"] = row["lanes"]["traj_steps_per_s"] / row["per trajectory"]["traj_steps_per_s"]
+    report = {"date": time.strftime("%Y-%m-%dT%H:%M:%S"), "cores": os.cpu_count(), "quick": args.quick,
+              "rows": rows, "target": TARGET}
+    md = markdown(report)
+    if args.json:
+        args.json.write_text(json.dumps(report, indent=2) + "\n")
+    if args.md:
+        args.md.write_text(md)
+    if not (args.json or args.md):
+        print(md)
+    return report
+
+
+def markdown(rep):
+    lines = ["| N | route | trajectory-steps/s | link-steps/s | flip kernel (N = 2) / this, per link-step | "
+             "lanes / per trajectory | target (<= 2x) |", "|---|---|---|---|---|---|---|"]
+    for row in rep["rows"]:
+        lanes, one = row["lanes"], row["per trajectory"]
+        route = "flip kernel (closed form)" if row["n"] == 2 else "lanes (recursion)"
+        ratio = row["flip_kernel_over_ours"]
+        verdict = "—" if row["n"] == 2 else ("met" if ratio <= rep["target"] else "**missed**")
+        lines.append(f"| {row['n']} | {route} | {lanes['traj_steps_per_s']:.3g} | {lanes['link_steps_per_s']:.3g} | "
+                     f"{ratio:.2f}x | {row['lanes_over_per_trajectory']:.1f}x (per trajectory: "
+                     f"{one['traj_steps_per_s']:.3g}/s) | {verdict} |")
+    met = sum(1 for row in rep["rows"][1:] if row["flip_kernel_over_ours"] <= rep["target"])
+    head = ("## (i) Lanes: flip times of chains of any N\n\n"
+            "`bench/bench_lanes.py`: B equal point-mass chains released from rest at angles in [-0.5, 0.5] rad "
+            "(no flip: every trajectory takes all 1000 rk4 steps of 0.01 s while its flip is watched for), "
+            "`mp.flip_times` on all cores; N = 2 through the double pendulum's closed-form flip kernel, every "
+            "other N through the lanes (`integrators::lanes::Rk4Lanes`, the O(N) recursion); the per-trajectory "
+            "route is `MULTIPENDULUM_FLIP_KERNEL=scalar`. Medians of alternating repeats. The issue's target, "
+            f"per link-step within {rep['target']:g}x of the flip kernel's: met for {met} of "
+            f"{len(rep['rows']) - 1} N. Measured {rep['date']}, {rep['cores']} cores, B = {rep['rows'][0]['b']} "
+            f"chains per N{' (quick)' if rep['quick'] else ''}.\n\n")
+    return head + "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":
+    sys.exit(0 if main() else 1)
