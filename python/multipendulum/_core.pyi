@@ -11,7 +11,7 @@ _F64 = npt.NDArray[np.float64]
 _Array = npt.ArrayLike
 
 __all__ = ["__version__", "InputError", "IntegrationError", "Torque", "Chain", "simulate", "checkpoint_time", "Event",
-           "lyapunov", "first_flips", "certified_flips", "flip_energy_threshold", "METHODS", "METHOD_INFO", "DEFAULTS", "LIMITS", "FORMS", "SENSITIVITIES",
+           "lyapunov", "first_flips", "certified_flips", "ensemble", "flip_energy_threshold", "METHODS", "METHOD_INFO", "DEFAULTS", "LIMITS", "FORMS", "SENSITIVITIES",
            "ALGORITHMS", "check_memory", "Axis", "CartForce", "axis_eval", "Steppers", "indicator", "indicators", "INDICATORS"]
 
 __version__: str
@@ -160,6 +160,8 @@ def first_flips(chain: Chain, theta0: _F64, omega0: _F64, t_max: float, *, dt: f
 def certified_flips(chain: Chain, theta0: _F64, omega0: _F64, t_max: float, *, dt: float, link: Optional[int] = None,
                     torque: Optional[Torque] = None, tolerance: Optional[float] = None,
                     progress: Optional[Callable[[float], Any]] = None) -> Tuple[_F64, npt.NDArray[np.bool_], float]: ...
+def ensemble(chain: Chain, theta0: _F64, omega0: _F64, t_end: float, *, method: str, dt: Optional[float] = None,
+             progress: Optional[Callable[[float], Any]] = None) -> Optional[Tuple[_F64, _F64, _F64, _F64, int, _F64]]: ...
 def flip_energy_threshold(chain: Chain, link: Optional[int] = None) -> float: ...
 def indicator(chain: Chain, theta0: Sequence[float], omega0: Sequence[float], t_end: float, *, dt: float, name: str,
               k: Optional[int] = None, torque: Optional[Torque] = None, deviations: Optional[Sequence[float]] = None,

@@ -14,6 +14,7 @@ pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(lyapunov, m)?)?;
     m.add_function(wrap_pyfunction!(first_flips, m)?)?;
     m.add_function(wrap_pyfunction!(certified_flips, m)?)?;
+    m.add_function(wrap_pyfunction!(ensemble, m)?)?;
     m.add_function(wrap_pyfunction!(flip_energy_threshold, m)?)?;
     m.add_function(wrap_pyfunction!(indicator, m)?)?;
     m.add_function(wrap_pyfunction!(indicators, m)?)?;
@@ -160,6 +161,53 @@ fn certified_flips<'py>(
     })?
     .map_err(|e| to_py(py, e))?;
     Ok((vec_out(py, out.times), PyArray1::from_vec(py, out.uncertain), out.tolerance))
+}
+
+/// The arrays of an ensemble.
+type EnsembleOut<'py> = (
+    Bound<'py, PyArray1<f64>>,
+    Bound<'py, PyArray1<f64>>,
+    Bound<'py, PyArray1<f64>>,
+    Bound<'py, PyArray1<f64>>,
+    u64,
+    Bound<'py, PyArray1<f64>>,
+);
+
+/// An undriven ensemble in SIMD lanes (`core::chaos::ensemble`): `(theta, omega, p, energy_error,
+/// steps, first_flip)` flat, or None where the core sends it the per-trajectory way (another
+/// method, a chain with losses or a cart, no `dt`, or `MULTIPENDULUM_LANES=scalar`).
+#[pyfunction]
+#[pyo3(signature = (chain, theta0, omega0, t_end, *, method, dt=None, progress=None))]
+#[allow(clippy::too_many_arguments)]
+fn ensemble<'py>(
+    py: Python<'py>,
+    chain: &PyChain,
+    theta0: PyReadonlyArray1<'py, f64>,
+    omega0: PyReadonlyArray1<'py, f64>,
+    t_end: f64,
+    method: &str,
+    dt: Option<f64>,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<Option<EnsembleOut<'py>>> {
+    let c = &chain.inner;
+    let method = core::Method::parse(method).map_err(|e| to_py(py, e))?;
+    let (Some(dt), Some(path)) = (dt, core::chaos::ensemble::route(c, method).map_err(|e| to_py(py, e))?) else {
+        return Ok(None);
+    };
+    let (theta0, omega0) = (slice("theta0", &theta0)?, slice("omega0", &omega0)?);
+    let watch = Watch::units((theta0.len() / c.n().max(1)) as u64);
+    let out = interruptible(py, &watch, progress.as_ref(), false, || {
+        core::chaos::ensemble::ensemble(c, theta0, omega0, t_end, dt, path, &watch)
+    })?
+    .map_err(|e| to_py(py, e))?;
+    Ok(Some((
+        vec_out(py, out.theta),
+        vec_out(py, out.omega),
+        vec_out(py, out.p),
+        vec_out(py, out.energy_error),
+        out.steps,
+        vec_out(py, out.first_flip),
+    )))
 }
 
 #[pyfunction]

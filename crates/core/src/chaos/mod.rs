@@ -1,5 +1,6 @@
 //! Chaos tools: Lyapunov exponents from the variational equations, and first-flip times of
 //! ensembles (the flip-time "fractal") with the energy bound that forbids flips.
+pub mod ensemble;
 pub mod flipkernel;
 pub mod indicators;
 

@@ -233,7 +233,7 @@ fn check_output_size(rows: f64, n: usize, row: f64) -> Result<()> {
 
 /// A fixed-step run's length is known: refuse one beyond `max_steps` before it starts (with a
 /// huge `t_end / dt` and `t_eval` it would otherwise run for ever).
-fn check_fixed_steps(settings: &Settings, t_end: f64) -> Result<()> {
+pub(crate) fn check_fixed_steps(settings: &Settings, t_end: f64) -> Result<()> {
     match settings.dt {
         Some(dt) if !settings.method.adaptive() || !settings.adaptive => {
             let steps = fixed_steps(t_end, dt);
@@ -856,7 +856,7 @@ impl Books {
 }
 
 /// The number of trajectories in rows of `theta0` and `omega0` (B x N each).
-fn batch_size(chain: &Chain, theta0: &[f64], omega0: &[f64]) -> Result<usize> {
+pub(crate) fn batch_size(chain: &Chain, theta0: &[f64], omega0: &[f64]) -> Result<usize> {
     let n = chain.n();
     if theta0.len() != omega0.len() || theta0.len() % n != 0 {
         return Err(Error::input(format!(

@@ -1,0 +1,105 @@
+"""mp.ensemble in SIMD lanes (issue 14): undriven ideal chains run by rk4 go through the core's
+lanes; the per-trajectory route (a batch simulate with a non-terminal Flip event, forced with
+MULTIPENDULUM_LANES=scalar) is the reference they must agree with."""
+import numpy as np
+import pytest
+
+import multipendulum as mp
+
+SWITCH = "MULTIPENDULUM_LANES"
+CHAINS = {
+    2: mp.Chain([1.0, 1.0], [1.0, 1.0]),
+    3: mp.Chain.rods([1.0, 0.5, 0.8], [1.0, 0.3, 2.0]),
+    5: mp.Chain([0.4] * 5, [1.0, 0.5, 2.0, 1.0, 0.1], com=[0.2] * 5, inertia=[0.01] * 5, g=3.7),
+}
+
+
+def both_routes(monkeypatch, *args, **kwargs):
+    monkeypatch.setenv(SWITCH, "auto")
+    fast = mp.ensemble(*args, **kwargs)
+    monkeypatch.setenv(SWITCH, "scalar")
+    slow = mp.ensemble(*args, **kwargs)
+    return fast, slow
+
+
+@pytest.mark.parametrize("n", sorted(CHAINS))
+def test_lanes_agree_with_the_per_trajectory_route(monkeypatch, n):
+    rng = np.random.default_rng(n)
+    th0 = rng.uniform(-3.0, 3.0, (45, n))  # many start near the top: flips within the run
+    om0 = rng.uniform(-2, 2, (45, n))
+    fast, slow = both_routes(monkeypatch, CHAINS[n], th0, om0, 0.834, method="rk4", dt=0.01)
+    # Round-off only (the lanes' sin/cos, fused operations), grown a little by chaos.
+    for name in ("theta", "omega", "p"):
+        a, b = getattr(fast, name), getattr(slow, name)
+        assert np.all(np.abs(a - b) <= 1e-12 * (1 + np.abs(b))), name
+    np.testing.assert_array_equal(fast.steps, slow.steps)
+    assert fast.steps[0] == 84  # the last step shortened to land on t_end
+    np.testing.assert_allclose(fast.energy_error, slow.energy_error, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(np.isfinite(fast.first_flip), np.isfinite(slow.first_flip))
+    flipped = np.isfinite(slow.first_flip)
+    assert flipped.sum() > 3
+    np.testing.assert_allclose(fast.first_flip[flipped], slow.first_flip[flipped], rtol=0, atol=1e-12)
+
+
+def test_the_energy_error_shrinks_at_rk4s_order():
+    # Low energy: regular motion, where the balance residual is rk4's error (order 4 per unit time).
+    th0 = np.random.default_rng(1).uniform(-0.6, 0.6, (64, 3))
+    errors = {dt: mp.ensemble(CHAINS[3], th0, np.zeros_like(th0), 5.0, method="rk4", dt=dt).energy_error
+              for dt in (0.02, 0.01)}
+    ratio = np.median(errors[0.02] / errors[0.01])
+    assert ratio > 2**3.8, ratio  # order 4 at least: halving dt divides the residual by 16 or more
+
+
+def test_a_row_has_the_same_bits_alone_and_in_any_batch():
+    th0 = np.random.default_rng(2).uniform(-2.5, 2.5, (37, 3))
+    om0 = np.zeros_like(th0)
+    batch = mp.ensemble(CHAINS[3], th0, om0, 3.0, method="rk4", dt=0.01)
+    for i in (0, 8, 36):
+        one = mp.ensemble(CHAINS[3], th0[i:i + 1], om0[i:i + 1], 3.0, method="rk4", dt=0.01)
+        np.testing.assert_array_equal(one.theta[0], batch.theta[i])
+        assert one.first_flip[0] == batch.first_flip[i] or np.isinf(batch.first_flip[i])
+
+
+@pytest.mark.parametrize("kwargs", [
+    dict(method="dop853"),                                           # another method
+    dict(method="rk4", dt=0.01, torque=mp.Sinusoid(0.3, 1.0)),       # driven
+])
+def test_what_the_lanes_do_not_cover_takes_the_per_trajectory_route(monkeypatch, kwargs):
+    th0 = np.random.default_rng(3).uniform(-1, 1, (6, 2))
+    fast, slow = both_routes(monkeypatch, CHAINS[2], th0, np.zeros_like(th0), 2.0, **kwargs)
+    for name in ("theta", "omega", "energy_error", "first_flip"):
+        np.testing.assert_array_equal(getattr(fast, name), getattr(slow, name))
+
+
+def test_a_chain_with_losses_takes_the_per_trajectory_route(monkeypatch):
+    chain = mp.Chain([1.0, 1.0], [1.0, 1.0], damping=0.1)
+    th0 = np.random.default_rng(4).uniform(-1, 1, (6, 2))
+    fast, slow = both_routes(monkeypatch, chain, th0, np.zeros_like(th0), 2.0, method="rk4", dt=0.01)
+    np.testing.assert_array_equal(fast.theta, slow.theta)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(dt=-0.01), "dt must be > 0 and finite, got -0.01"),
+    (dict(dt=0.01, t_end=-1.0), "t_end must be > 0 and finite, got -1"),
+    (dict(dt=None), "method rk4 takes a fixed step: give dt"),
+    (dict(dt=1e-12, t_end=1e6), "max_steps"),
+])
+def test_bad_input_gives_the_same_error_on_both_routes(monkeypatch, kwargs, message):
+    kwargs = {"t_end": 1.0, **kwargs}
+    th0 = np.full((3, 2), 0.1)
+    for route in ("auto", "scalar"):
+        monkeypatch.setenv(SWITCH, route)
+        with pytest.raises(mp.InputError) as e:
+            mp.ensemble(CHAINS[2], th0, np.zeros_like(th0), kwargs["t_end"], method="rk4", dt=kwargs["dt"])
+        assert message in str(e.value), (route, str(e.value))
+
+
+def test_a_blow_up_names_its_trajectory_on_both_routes(monkeypatch):
+    th0 = np.full((3, 2), 0.1)
+    om0 = np.zeros((3, 2))
+    om0[2, 0] = 1e200
+    for route in ("auto", "scalar"):
+        monkeypatch.setenv(SWITCH, route)
+        with pytest.raises(mp.IntegrationError) as e:
+            mp.ensemble(CHAINS[2], th0, om0, 1.0, method="rk4", dt=0.01)
+        assert "trajectory 2:" in str(e.value), (route, str(e.value))
