@@ -329,7 +329,7 @@ def ensemble(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: 
     th0, om0 = as_state(theta0, "theta0", chain.n), as_state(omega0, "omega0", chain.n)
     if th0.ndim != 2 or th0.shape != om0.shape:
         raise InputError(f"theta0 and omega0 must both have shape (B, {chain.n}), got {th0.shape} and {om0.shape}")
-    if torque is None and joint_torque is None:
+    if torque is None and joint_torque is None and isinstance(method, str):
         # Undriven: the core runs it in SIMD lanes where the chain and method allow (else None).
         _check_progress(progress)
         with reporter(progress, "ensemble") as report:
