@@ -98,7 +98,11 @@ LONG_BATCH = textwrap.dedent("""
     "mp.simulate(chain, th, np.zeros_like(th), 200.0, method='rk4', dt=0.001, t_eval=[200.0])",
     "mp.flip_times(mp.Chain([1, 1], [1, 1]), th[:, :2], t_max=1e4)",
     "mp.lyapunov(chain, th[0], np.zeros(3), t_end=1e6)",
-], ids=["batch", "flip_times", "lyapunov"])
+    # In lanes, on a long chain: a group of eight takes seconds (the check was per 1024 steps).
+    "mp.ensemble(mp.Chain(np.ones(1000), np.ones(1000)), np.full((4000, 1000), 0.1), np.zeros((4000, 1000)), 10.0, "
+    "method='rk4', dt=0.01)",
+    "mp.flip_times(mp.Chain(np.ones(1000), np.ones(1000)), np.full((4000, 1000), 0.1), t_max=10.0)",
+], ids=["batch", "flip_times", "lyapunov", "ensemble_lanes", "flip_times_long_chain"])
 def test_ctrl_c_stops_long_core_work_within_a_second(call):
     script = LONG_BATCH.replace("{B}", "20000").replace("{CALL}", call)
     proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
