@@ -53,7 +53,7 @@ pub fn accelerations(
     active: &Lane,
 ) -> Result<(), LaneSingular> {
     if chain.n() == 2 {
-        return double(chain, theta, omega, tau, out, active);
+        return double(chain, theta, omega, tau, out, s, active);
     }
     recursion(chain, theta, omega, tau, out, s, active)
 }
@@ -78,6 +78,7 @@ fn double(
     omega: &[Lane],
     tau: &[Lane],
     out: &mut [Lane],
+    s: &mut LaneScratch,
     active: &Lane,
 ) -> Result<(), LaneSingular> {
     let (d1, d2, h1, h2, g) = (
@@ -91,6 +92,8 @@ fn double(
     let tol = PIVOT_TOL * d1 * d2;
     let (s1, c1) = sin_cos(&theta[0]);
     let (s2, c2) = sin_cos(&theta[1]);
+    // Kept for the tangent ([`tangent`]) at the same angles.
+    (s.sin[0], s.cos[0], s.sin[1], s.cos[1]) = (s1, c1, s2, c2);
     let mut ok = [true; LANES];
     let (mut a0, mut a1) = ([0.0; LANES], [0.0; LANES]);
     let (gh1, gh2, d1d2) = (g * h1, g * h2, d1 * d2);
@@ -214,6 +217,128 @@ fn recursion(
     Err(LaneSingular { link: Singular(first as usize), lanes: std::array::from_fn(|i| worst[i] >= 0.0) })
 }
 
+/// The tangent of [`accelerations`] along `(d_theta, d_omega)`: `d theta_ddot` of every lane into
+/// `out`, for torques that depend on time only. `accel` is `theta_ddot` at the same state and `s`
+/// the scratch of that [`accelerations`] call (its trig and, for N != 2, its elimination, which
+/// the solve reuses: the mass matrix is the same). The arithmetic of
+/// [`Chain::tangent_accelerations_into`] (`A d_theta_ddot = dr - (dA) theta_ddot`, every term a
+/// sum of `K_ab sin/cos(theta_a - theta_b)` against a vector), its five coupled sums fused into
+/// one pass up and one down; the double pendulum in closed form. Agrees with it to round-off.
+#[inline(always)]
+pub fn tangent(
+    chain: &Chain,
+    omega: &[Lane],
+    accel: &[Lane],
+    d_theta: &[Lane],
+    d_omega: &[Lane],
+    out: &mut [Lane],
+    s: &LaneScratch,
+) {
+    if chain.n() == 2 {
+        return tangent_double(chain, omega, accel, d_theta, d_omega, out, s);
+    }
+    let n = omega.len();
+    let (l, h, g) = (&chain.lengths[..n], &chain.h[..n], chain.g);
+    // Up the chain: the links above (prefix sums of l_b u_b n_b for the five vectors u:
+    // w^2, d_theta w^2, w d_omega, accel, d_theta accel).
+    let mut p = [[0.0; LANES]; 10];
+    for a in 0..n {
+        let (sa, ca, w, dw, dth, acc) = (s.sin[a], s.cos[a], omega[a], d_omega[a], d_theta[a], accel[a]);
+        let (ha, la) = (h[a], l[a]);
+        let mut r = [0.0; LANES];
+        for i in 0..LANES {
+            let (c, sn, dt) = (ca[i], sa[i], dth[i]);
+            // cos-sums of w^2 and d_theta w^2; sin-sums of w d_omega, accel and d_theta accel.
+            let cos1 = c * p[0][i] + sn * p[1][i];
+            let cos2 = c * p[2][i] + sn * p[3][i];
+            let sin3 = sn * p[4][i] - c * p[5][i];
+            let sin4 = sn * p[6][i] - c * p[7][i];
+            let sin5 = sn * p[8][i] - c * p[9][i];
+            r[i] = -g * ha * c * dt + ha * (cos2 - dt * cos1 - 2.0 * sin3 + dt * sin4 - sin5);
+            let w2 = w[i] * w[i];
+            let u = [w2, dt * w2, w[i] * dw[i], acc[i], dt * acc[i]];
+            for (q, uq) in u.iter().enumerate() {
+                p[2 * q][i] += la * uq * c;
+                p[2 * q + 1][i] += la * uq * sn;
+            }
+        }
+        out[a] = r;
+    }
+    // Down the chain: the links below (suffix sums of h_b u_b n_b) complete each row, which the
+    // elimination (its pivots and u from the accelerations) takes at once.
+    let mut q = [[0.0; LANES]; 10];
+    let (mut wx, mut wy) = ([0.0; LANES], [0.0; LANES]);
+    for a in (0..n).rev() {
+        let (sa, ca, w, dw, dth, acc) = (s.sin[a], s.cos[a], omega[a], d_omega[a], d_theta[a], accel[a]);
+        let (ux, uy, inv, r) = (s.ux[a], s.uy[a], s.dinv[a], out[a]);
+        let (ha, la) = (h[a], l[a]);
+        let mut rho = [0.0; LANES];
+        for i in 0..LANES {
+            let (c, sn, dt) = (ca[i], sa[i], dth[i]);
+            let cos1 = c * q[0][i] + sn * q[1][i];
+            let cos2 = c * q[2][i] + sn * q[3][i];
+            let sin3 = sn * q[4][i] - c * q[5][i];
+            let sin4 = sn * q[6][i] - c * q[7][i];
+            let sin5 = sn * q[8][i] - c * q[9][i];
+            let row = r[i] + la * (cos2 - dt * cos1 - 2.0 * sin3 + dt * sin4 - sin5);
+            let w2 = w[i] * w[i];
+            let u = [w2, dt * w2, w[i] * dw[i], acc[i], dt * acc[i]];
+            for (k, uk) in u.iter().enumerate() {
+                q[2 * k][i] += ha * uk * c;
+                q[2 * k + 1][i] += ha * uk * sn;
+            }
+            let rh = row - la * (c * wx[i] + sn * wy[i]);
+            wx[i] += ux[i] * rh * inv[i];
+            wy[i] += uy[i] * rh * inv[i];
+            rho[i] = rh;
+        }
+        out[a] = rho;
+    }
+    let (mut px, mut py) = ([0.0; LANES], [0.0; LANES]);
+    for a in 0..n {
+        let (la, rho, ux, uy, inv, cos, sin) = (l[a], out[a], s.ux[a], s.uy[a], s.dinv[a], s.cos[a], s.sin[a]);
+        let mut x = [0.0; LANES];
+        for i in 0..LANES {
+            let xa = (rho[i] - (ux[i] * px[i] + uy[i] * py[i])) * inv[i];
+            x[i] = xa;
+            px[i] += la * cos[i] * xa;
+            py[i] += la * sin[i] * xa;
+        }
+        out[a] = x;
+    }
+}
+
+/// [`tangent`] of the double pendulum: with `delta = d_theta_1 - d_theta_2`,
+/// `dr_1 = -g h_1 c_1 d_theta_1 - K c_12 delta w_2^2 - 2 K s_12 w_2 d_w_2 + K s_12 delta a_2` (and
+/// the mirror for the second row), solved by the 2 x 2 inverse of the accelerations.
+#[inline(always)]
+fn tangent_double(
+    chain: &Chain,
+    omega: &[Lane],
+    accel: &[Lane],
+    d_theta: &[Lane],
+    d_omega: &[Lane],
+    out: &mut [Lane],
+    s: &LaneScratch,
+) {
+    let (d1, d2, h1, h2, g) = (chain.diag[0], chain.diag[1], chain.h[0], chain.h[1], chain.g);
+    let k = chain.lengths[0] * h2;
+    let (s1, c1, s2, c2) = (s.sin[0], s.cos[0], s.sin[1], s.cos[1]);
+    let (mut a0, mut a1) = ([0.0; LANES], [0.0; LANES]);
+    for i in 0..LANES {
+        let (s12, c12) = (s1[i].mul_add(c2[i], -(c1[i] * s2[i])), c1[i].mul_add(c2[i], s1[i] * s2[i]));
+        let (w1, w2) = (omega[0][i], omega[1][i]);
+        let delta = d_theta[0][i] - d_theta[1][i];
+        let (kc, ks) = (k * c12, k * s12);
+        let r1 = -g * h1 * c1[i] * d_theta[0][i] - kc * delta * w2 * w2 - 2.0 * ks * w2 * d_omega[1][i] + ks * delta * accel[1][i];
+        let r2 = -g * h2 * c2[i] * d_theta[1][i] + kc * delta * w1 * w1 + 2.0 * ks * w1 * d_omega[0][i] + ks * delta * accel[0][i];
+        let inv = 1.0 / (-kc).mul_add(kc, d1 * d2);
+        a0[i] = d2.mul_add(r1, -(kc * r2)) * inv;
+        a1[i] = d1.mul_add(r2, -(kc * r1)) * inv;
+    }
+    (out[0], out[1]) = (a0, a1);
+}
+
 /// Kinetic and total energy of every lane: `T = 1/2 sum_a d_a w_a^2 + sum_{b<a} l_b h_a w_a w_b
 /// cos(theta_a - theta_b)` (the mass matrix's entries, by prefix sums over the links above, O(N))
 /// and `U = -g sum_a h_a cos theta_a`, as [`Chain::kinetic_energy`] and
@@ -245,8 +370,9 @@ mod tests {
     use crate::dynamics::Workspace;
 
     #[test]
-    fn lanes_are_the_per_state_accelerations_to_round_off() {
+    fn lanes_are_the_per_state_accelerations_and_tangents_to_round_off() {
         for chain in [
+            Chain::new(&[0.8], &[1.5], None, None, 9.81).unwrap(),
             Chain::new(&[1.0, 0.7], &[1.0, 2.0], None, None, 9.81).unwrap(),
             Chain::rods(&[1.0, 0.5, 0.8], &[1.0, 0.3, 2.0], 9.81).unwrap(),
             Chain::new(
@@ -270,16 +396,17 @@ mod tests {
                 }
             }
             let mut out = vec![[0.0; LANES]; n];
-            accelerations(
-                &chain,
-                &th,
-                &om,
-                &tau,
-                &mut out,
-                &mut LaneScratch::new(n),
-                &[1.0; LANES],
-            )
-            .unwrap();
+            let mut scratch = LaneScratch::new(n);
+            accelerations(&chain, &th, &om, &tau, &mut out, &mut scratch, &[1.0; LANES]).unwrap();
+            let (mut dth, mut dom) = (vec![[0.0; LANES]; n], vec![[0.0; LANES]; n]);
+            for a in 0..n {
+                for i in 0..LANES {
+                    dth[a][i] = (a as f64 * 0.9 - i as f64 * 0.3).sin();
+                    dom[a][i] = (a as f64 * 2.1 + i as f64 * 0.5).cos() * 1.7;
+                }
+            }
+            let mut tan = vec![[0.0; LANES]; n];
+            tangent(&chain, &om, &out, &dth, &dom, &mut tan, &scratch);
             let (mut kin, mut en) = ([0.0; LANES], [0.0; LANES]);
             energies(&chain, &th, &om, &mut kin, &mut en);
             let mut ws = Workspace::new(n);
@@ -293,6 +420,18 @@ mod tests {
                     assert!(
                         (out[a][i] - want[a]).abs() <= 1e-12 * (1.0 + want[a].abs()),
                         "N = {n}, lane {i}, link {a}"
+                    );
+                }
+                let (mut want_tan, mut sc) = (vec![0.0; n], vec![0.0; 6 * n]);
+                chain
+                    .tangent_accelerations_into(&col(&th), &col(&om), &want, &col(&dth), &col(&dom), &mut want_tan, &mut sc, &mut ws)
+                    .unwrap();
+                for a in 0..n {
+                    assert!(
+                        (tan[a][i] - want_tan[a]).abs() <= 1e-12 * (1.0 + want_tan[a].abs()),
+                        "N = {n}, lane {i}, link {a}: tangent {} vs {}",
+                        tan[a][i],
+                        want_tan[a]
                     );
                 }
                 let t = chain.kinetic_energy(&col(&th), &col(&om), &mut vec![0.0; n], &mut ws);

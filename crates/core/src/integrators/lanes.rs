@@ -8,6 +8,33 @@ use crate::dynamics::lanes::{accelerations, LaneScratch, LaneSingular};
 use crate::model::Chain;
 use crate::trig::lanes::{Lane, LANES};
 
+/// A system of lanes built on a chain's accelerations. A trait rather than a closure: its
+/// `#[inline(always)]` method is compiled inside the caller's `#[target_feature]` wrapper, where
+/// a closure's body would be a function of its own on the baseline target (no FMA: `mul_add`
+/// becomes a call to `fma()`).
+pub trait LaneSystem {
+    /// The rates at the stage's state `y` into `dy` (stage `0..4` at `t`, `t + dt/2`, `t + dt/2`,
+    /// `t + dt`), with `scratch` for the accelerations.
+    fn rates(&mut self, stage: usize, y: &[Lane], dy: &mut [Lane], scratch: &mut LaneScratch) -> std::result::Result<(), LaneSingular>;
+}
+
+/// `y = [theta, omega]` under torques `tau` held over the step.
+struct Plain<'a> {
+    chain: &'a Chain,
+    tau: &'a [Lane],
+    active: &'a Lane,
+}
+
+impl LaneSystem for Plain<'_> {
+    #[inline(always)]
+    fn rates(&mut self, _stage: usize, y: &[Lane], dy: &mut [Lane], scratch: &mut LaneScratch) -> std::result::Result<(), LaneSingular> {
+        let n = self.chain.n();
+        let (head, tail) = dy.split_at_mut(n);
+        head.copy_from_slice(&y[n..2 * n]);
+        accelerations(self.chain, &y[..n], &y[n..2 * n], self.tau, tail, scratch, self.active)
+    }
+}
+
 /// rk4's stage buffers for eight states of an N-link chain, each a lane.
 #[derive(Debug, Clone)]
 pub struct Rk4Lanes {
@@ -18,8 +45,14 @@ pub struct Rk4Lanes {
 
 impl Rk4Lanes {
     pub fn new(n: usize) -> Self {
+        Self::with_dim(n, 2 * n)
+    }
+
+    /// Buffers for a system of `m` lanes per state built on an N-link chain's accelerations (the
+    /// tangent equations: `m = 2N (1 + k)` and more).
+    pub fn with_dim(n: usize, m: usize) -> Self {
         let lanes = |k| vec![[0.0; LANES]; k];
-        Rk4Lanes { k: std::array::from_fn(|_| lanes(2 * n)), tmp: lanes(2 * n), scratch: LaneScratch::new(n) }
+        Rk4Lanes { k: std::array::from_fn(|_| lanes(m)), tmp: lanes(m), scratch: LaneScratch::new(n) }
     }
 
     /// One rk4 step of every active lane (`active[i] > 0`) of `y = [theta (N), omega (N)]` under
@@ -36,16 +69,25 @@ impl Rk4Lanes {
         dt: f64,
         active: &Lane,
     ) -> std::result::Result<[bool; LANES], (usize, LaneSingular)> {
-        let n = chain.n();
+        self.step_system(y, dt, active, &mut Plain { chain, tau, active })
+    }
+
+    /// [`Rk4Lanes::step`] of any system built on the chain (see [`LaneSystem`]).
+    #[inline(always)]
+    pub fn step_system(
+        &mut self,
+        y: &mut [Lane],
+        dt: f64,
+        active: &Lane,
+        sys: &mut impl LaneSystem,
+    ) -> std::result::Result<[bool; LANES], (usize, LaneSingular)> {
         let half = 0.5 * dt;
         let Rk4Lanes { k, tmp, scratch } = self;
         // Loops over whole lanes by iterators (no bounds checks), so they vectorise.
         for stage in 0..4 {
             {
                 let src: &[Lane] = if stage == 0 { &y[..] } else { &tmp[..] };
-                let (head, tail) = k[stage].split_at_mut(n);
-                head.copy_from_slice(&src[n..2 * n]);
-                accelerations(chain, &src[..n], &src[n..2 * n], tau, tail, scratch, active).map_err(|s| (stage, s))?;
+                sys.rates(stage, src, &mut k[stage], scratch).map_err(|s| (stage, s))?;
             }
             if stage < 3 {
                 let h = if stage < 2 { half } else { dt };
