@@ -60,6 +60,31 @@ impl Indicator {
         }
     }
 
+    /// The rule of thumb that calls a value chaotic, where the field has one: `(above,
+    /// threshold)`, chaotic when the value is above (`true`) or below the threshold. MEGNO above
+    /// 4 (regular orbits tend to 2 and reach it slowly on short runs), SALI and GALI below 1e-8
+    /// (Skokos 2001; Skokos et al. 2007). The other indicators' levels depend on the time and the
+    /// system: `None`, chaotic above a threshold the caller states.
+    pub fn chaos_rule(self) -> (bool, Option<f64>) {
+        match self {
+            Indicator::Megno => (true, Some(4.0)),
+            Indicator::Sali | Indicator::Gali(_) => (false, Some(1e-8)),
+            Indicator::Fli | Indicator::Ofli | Indicator::Lyapunov => (true, None),
+        }
+    }
+
+    /// The indicator's name, as [`Indicator::parse`] takes it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Indicator::Megno => "megno",
+            Indicator::Fli => "fli",
+            Indicator::Ofli => "ofli",
+            Indicator::Sali => "sali",
+            Indicator::Gali(_) => "gali",
+            Indicator::Lyapunov => "lyapunov",
+        }
+    }
+
     /// Deviation vectors it follows.
     pub fn vectors(self) -> usize {
         match self {
@@ -98,7 +123,7 @@ pub fn initial_deviations(d: usize, k: usize) -> Vec<f64> {
 
 /// Modified Gram-Schmidt on the rows of `v` (`k x d`), in place; the product of the norms
 /// before normalisation (the rows' volume). Err if a row collapses.
-fn orthonormalise(v: &mut [f64], d: usize, k: usize) -> Result<f64> {
+pub(super) fn orthonormalise(v: &mut [f64], d: usize, k: usize) -> Result<f64> {
     let mut volume = 1.0;
     for j in 0..k {
         let (done, rest) = v.split_at_mut(d * j);
@@ -116,6 +141,21 @@ fn orthonormalise(v: &mut [f64], d: usize, k: usize) -> Result<f64> {
         row.iter_mut().for_each(|x| *x /= norm);
     }
     Ok(volume)
+}
+
+/// The `k` unit deviation vectors a run starts from: `deviations` (`k x d`) normalised (their
+/// directions as given; they must span k dimensions), or [`initial_deviations`].
+fn start_vectors(d: usize, k: usize, deviations: Option<&[f64]>) -> Result<Vec<f64>> {
+    let Some(dev) = deviations else {
+        return Ok(initial_deviations(d, k));
+    };
+    orthonormalise(&mut dev.to_vec(), d, k)?;
+    let mut v = dev.to_vec();
+    for row in v.chunks_mut(d) {
+        let r = norm(row);
+        row.iter_mut().for_each(|x| *x /= r);
+    }
+    Ok(v)
 }
 
 fn norm(v: &[f64]) -> f64 {
@@ -174,12 +214,29 @@ pub fn indicator(
     let samples = (steps / record_every + 1) as f64;
     crate::memory::check(samples * 16.0, &format!("a history of {samples:.0} samples"), "use a larger record_every")?;
     let mut series = Series { value: f64::NAN, times: Vec::new(), values: Vec::new() };
-    let value = run(chain, theta0, omega0, steps, dt, which, torque, deviations, watch, true, &mut |step, v| {
+    let keep = |series: &mut Series, step: u64, v: f64| {
         if step % record_every == 0 || step == steps {
             series.times.push(step as f64 * dt);
             series.values.push(v);
         }
-    })?;
+    };
+    // In lanes where a batch would be, so that a state's value is its value in any batch.
+    let mut value = None;
+    if let Some(path) = super::indicator_lanes::route(chain, torque)? {
+        chain.check_state("theta0", theta0)?;
+        chain.check_state("omega0", omega0)?;
+        let start = start_vectors(2 * chain.n(), which.vectors(), deviations)?;
+        value = super::indicator_lanes::indicator(chain, theta0, omega0, steps, dt, which, &start, path, watch, &mut |step, v| keep(&mut series, step, v))?;
+    }
+    let value = match value {
+        Some(v) => v,
+        None => {
+            // (what the lanes recorded of a run they could not finish is dropped)
+            series.times.clear();
+            series.values.clear();
+            run(chain, theta0, omega0, steps, dt, which, torque, deviations, watch, true, &mut |step, v| keep(&mut series, step, v))?
+        }
+    };
     series.value = value;
     Ok(series)
 }
@@ -204,6 +261,14 @@ pub fn indicators(
     if omega0.len() != theta0.len() {
         return Err(Error::input(format!("theta0 and omega0 must both have shape (B, {n})")));
     }
+    if let Some(path) = super::indicator_lanes::route(chain, torque)? {
+        for i in 0..b {
+            chain.check_state("theta0", &theta0[i * n..(i + 1) * n])?;
+            chain.check_state("omega0", &omega0[i * n..(i + 1) * n])?;
+        }
+        let start = start_vectors(2 * n, which.vectors(), deviations)?;
+        return super::indicator_lanes::indicators(chain, theta0, omega0, steps, dt, which, &start, deviations, path, watch);
+    }
     let rows: Vec<Result<f64>> = (0..b)
         .into_par_iter()
         .map(|i| {
@@ -215,9 +280,54 @@ pub fn indicators(
     rows.into_iter().collect()
 }
 
+/// A certified batch: [`indicators`] at `dt` (the values reported) and again at `dt / 2`; a row
+/// is uncertain where the two runs fall on different sides of `threshold` (the indicator's
+/// [`Indicator::chaos_rule`] unless given), so that whether it looks chaotic depends on the step.
+/// `watch` counts each row twice.
+#[allow(clippy::too_many_arguments)]
+pub fn certified_indicators(
+    chain: &Chain,
+    theta0: &[f64],
+    omega0: &[f64],
+    t_end: f64,
+    dt: f64,
+    which: Indicator,
+    torque: &Builtin,
+    deviations: Option<&[f64]>,
+    threshold: Option<f64>,
+    watch: &Watch,
+) -> Result<CertifiedValues> {
+    let (above, rule) = which.chaos_rule();
+    let threshold = match threshold.or(rule) {
+        Some(t) if t.is_finite() => t,
+        Some(t) => return Err(Error::input(format!("threshold must be finite, got {t}"))),
+        None => {
+            return Err(Error::input(format!(
+                "a certified {} map needs a threshold: the value above which a cell counts as chaotic (megno, sali and gali have their own)",
+                which.name()
+            )))
+        }
+    };
+    let values = indicators(chain, theta0, omega0, t_end, dt, which, torque, deviations, watch)?;
+    let fine = indicators(chain, theta0, omega0, t_end, 0.5 * dt, which, torque, deviations, watch)?;
+    let chaotic = |v: f64| if above { v > threshold } else { v < threshold };
+    let uncertain = values.iter().zip(&fine).map(|(&a, &b)| chaotic(a) != chaotic(b)).collect();
+    Ok(CertifiedValues { values, uncertain, threshold, above })
+}
+
+/// What [`certified_indicators`] finds: the values at `dt`, the uncertain rows, and the rule they
+/// were judged by (chaotic `above` or below `threshold`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct CertifiedValues {
+    pub values: Vec<f64>,
+    pub uncertain: Vec<bool>,
+    pub threshold: f64,
+    pub above: bool,
+}
+
 /// The run itself: `observe(step, value)` after every step when `history`.
 #[allow(clippy::too_many_arguments)]
-fn run(
+pub(super) fn run(
     chain: &Chain,
     theta0: &[f64],
     omega0: &[f64],
@@ -241,19 +351,7 @@ fn run(
     let mut y = vec![0.0; dim];
     y[..n].copy_from_slice(theta0);
     y[n..d].copy_from_slice(omega0);
-    match deviations {
-        Some(dev) => {
-            y[d..d * (1 + k)].copy_from_slice(dev);
-            // Unit vectors (their directions as given); they must span k dimensions.
-            let mut probe = dev.to_vec();
-            orthonormalise(&mut probe, d, k)?;
-            for row in y[d..d * (1 + k)].chunks_mut(d) {
-                let r = norm(row);
-                row.iter_mut().for_each(|x| *x /= r);
-            }
-        }
-        None => y[d..d * (1 + k)].copy_from_slice(&initial_deviations(d, k)),
-    }
+    y[d..d * (1 + k)].copy_from_slice(&start_vectors(d, k, deviations)?);
     let mut rk = Rk4::new(dim);
     let mut y_new = vec![0.0; dim];
     let (mut log_growth, mut fli) = (0.0f64, 0.0f64);

@@ -2,6 +2,7 @@
 //! ensembles (the flip-time "fractal") with the energy bound that forbids flips.
 pub mod ensemble;
 pub mod flipkernel;
+pub mod indicator_lanes;
 pub mod indicators;
 
 use crate::dynamics::general::{Load, TANGENT_SCRATCH};

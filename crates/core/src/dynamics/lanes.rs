@@ -197,19 +197,7 @@ fn recursion(
         }
         (s.ux[a], s.uy[a], s.dinv[a], out[a]) = (uxs, uys, invs, rhos);
     }
-    // Forward substitution.
-    let (mut px, mut py) = ([0.0; LANES], [0.0; LANES]);
-    for a in 0..n {
-        let (la, rho, ux, uy, inv, cos, sin) = (l[a], out[a], s.ux[a], s.uy[a], s.dinv[a], s.cos[a], s.sin[a]);
-        let mut x = [0.0; LANES];
-        for i in 0..LANES {
-            let xa = (rho[i] - (ux[i] * px[i] + uy[i] * py[i])) * inv[i];
-            x[i] = xa;
-            px[i] += la * cos[i] * xa;
-            py[i] += la * sin[i] * xa;
-        }
-        out[a] = x;
-    }
+    substitute(l, out, s);
     let first = worst.iter().copied().fold(-1.0, f64::max);
     if first < 0.0 {
         return Ok(());
@@ -294,18 +282,7 @@ pub fn tangent(
         }
         out[a] = rho;
     }
-    let (mut px, mut py) = ([0.0; LANES], [0.0; LANES]);
-    for a in 0..n {
-        let (la, rho, ux, uy, inv, cos, sin) = (l[a], out[a], s.ux[a], s.uy[a], s.dinv[a], s.cos[a], s.sin[a]);
-        let mut x = [0.0; LANES];
-        for i in 0..LANES {
-            let xa = (rho[i] - (ux[i] * px[i] + uy[i] * py[i])) * inv[i];
-            x[i] = xa;
-            px[i] += la * cos[i] * xa;
-            py[i] += la * sin[i] * xa;
-        }
-        out[a] = x;
-    }
+    substitute(l, out, s);
 }
 
 /// [`tangent`] of the double pendulum: with `delta = d_theta_1 - d_theta_2`,
@@ -337,6 +314,25 @@ fn tangent_double(
         a1[i] = d1.mul_add(r2, -(kc * r1)) * inv;
     }
     (out[0], out[1]) = (a0, a1);
+}
+
+/// Forward substitution after the elimination (`out` holds the reduced right-hand side `rho`):
+/// `x_a = (rho_a - u_a . P_a) / pivot_a`, `P` the prefix sum of `l_b n_b x_b`.
+#[inline(always)]
+fn substitute(l: &[f64], out: &mut [Lane], s: &LaneScratch) {
+    let n = out.len();
+    let (mut px, mut py) = ([0.0; LANES], [0.0; LANES]);
+    for a in 0..n {
+        let (la, rho, ux, uy, inv, cos, sin) = (l[a], out[a], s.ux[a], s.uy[a], s.dinv[a], s.cos[a], s.sin[a]);
+        let mut x = [0.0; LANES];
+        for i in 0..LANES {
+            let xa = (rho[i] - (ux[i] * px[i] + uy[i] * py[i])) * inv[i];
+            x[i] = xa;
+            px[i] += la * cos[i] * xa;
+            py[i] += la * sin[i] * xa;
+        }
+        out[a] = x;
+    }
 }
 
 /// Kinetic and total energy of every lane: `T = 1/2 sum_a d_a w_a^2 + sum_{b<a} l_b h_a w_a w_b
