@@ -32,6 +32,9 @@ reported, not timed):
   (j) an ensemble of 16384 triple pendulums in lanes against a hand-vectorised C peer
       (bench/c/ensemble_omp.c): bench/bench_ensemble.py, run as a subprocess (alone: bench/run
       [--quick] --only j).
+  (k) chaos indicators in SIMD lanes against the per-state route, and the time of a 1024 x 1024
+      certified MEGNO map: bench/bench_atlas.py, run as a subprocess (alone: bench/run [--quick]
+      --only k).
 Speeds are measured in alternation (bench_engine.measure) so background load falls on every
 contender alike; times are medians of several repeats, with their ranges.
 """
@@ -870,7 +873,7 @@ def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--quick", action="store_true", help="smaller scans (under 5 min on 2 cores)")
     p.add_argument("--repeats", type=int, default=None, help="repeats per measurement (>= 3)")
-    p.add_argument("--only", default="abcdefghij", help="workloads to run, e.g. 'bd' (default: all)")
+    p.add_argument("--only", default="abcdefghijk", help="workloads to run, e.g. 'bd' (default: all)")
     args = p.parse_args(argv)
     args.repeats = max(3, args.repeats or (5 if args.quick else 7))
     start = time.perf_counter()
@@ -913,7 +916,7 @@ def main(argv=None):
             log(f"  (f) {envs.get('status')}: {envs.get('why', 'a part failed, see its section')}")
     else:
         envs = {"status": "not run", "why": "left out with --only"}
-    dataset, sens, lanes, ens = {}, {}, {}, {}
+    dataset, sens, lanes, ens, atlas = {}, {}, {}, {}, {}
     if "g" in args.only:
         log("(g) datasets streamed to Zarr (bench_dataset.py) ...")
         dataset = run_section("dataset", "(g) Datasets", args.quick, sys.executable)
@@ -926,6 +929,9 @@ def main(argv=None):
     if "j" in args.only:
         log("(j) an ensemble of triple pendulums against C (bench_ensemble.py) ...")
         ens = run_section("ensemble", "(j) Ensemble against C", args.quick, sys.executable)
+    if "k" in args.only:
+        log("(k) chaos indicators in lanes and a certified MEGNO map (bench_atlas.py) ...")
+        atlas = run_section("atlas", "(k) Chaos indicators in lanes", args.quick, sys.executable)
     busy = sorted(set(busy) | set(E.busy_compilers()))
     if hasattr(os, "getloadavg"):
         info["load average at end (1, 5, 15 min)"] = " ".join(f"{x:.2f}" for x in os.getloadavg())
@@ -940,13 +946,14 @@ def main(argv=None):
            "sensitivity": {k: v for k, v in sens.items() if k != "md"},
            "lanes": {k: v for k, v in lanes.items() if k != "md"},
            "ensemble": {k: v for k, v in ens.items() if k != "md"},
+           "atlas": {k: v for k, v in atlas.items() if k != "md"},
            "versions": vers, "elapsed": elapsed, "quick": args.quick}
     BUILD.mkdir(exist_ok=True)
     (BUILD / "results.json").write_text(json.dumps(raw, indent=1, default=str))
     if set(args.only) >= set("abd"):
         report = render(args, info, vers, c_cmd, elapsed, busy, rk4, numba_dp, acc_rows,
                         acc_fit, dop, chains, fits, flip, wp, model, envs)
-        for extra in (dataset, sens, lanes, ens):
+        for extra in (dataset, sens, lanes, ens, atlas):
             if extra:
                 report += "\n" + extra["md"]
         RESULTS.write_text(report, encoding="utf-8")
@@ -959,7 +966,7 @@ def main(argv=None):
                          "|---|---|---|---|---|---|", *envs_summary(envs)]) + "\n")
         print(envs_section(envs))
     if not set(args.only) >= set("abd"):
-        for extra in (dataset, sens, lanes, ens):  # a partial run: the sections as they would stand in RESULTS.md
+        for extra in (dataset, sens, lanes, ens, atlas):  # a partial run: the sections as they would stand in RESULTS.md
             if extra:
                 print(extra["md"])
     log(f"done in {elapsed / 60:.1f} min")

@@ -123,7 +123,10 @@ def test_fractal_certify_counts_the_uncertain_cells(tmp_path, capsys):
 @pytest.mark.parametrize("args, message", [
     (["fractal", "--time-tolerance", "0.1"], "--time-tolerance applies to a certified map: add --certify"),
     (["fractal", "--certify", "--time-tolerance", "-1"], "time_tolerance must be >= 0 and finite, got -1"),
-    (["atlas", "--certify"], "--certify is for --indicator flip only"),
+    (["atlas", "--certify", "--indicator", "fli"], "--certify with --indicator fli needs --threshold VALUE"),
+    (["atlas", "--threshold", "3"], "--threshold applies to a certified map: add --certify"),
+    (["atlas", "--indicator", "flip", "--certify", "--threshold", "3"],
+     "--threshold is for the indicators' certified maps; a flip map takes --time-tolerance"),
 ])
 def test_the_commands_refuse_bad_certification_options(tmp_path, capsys, args, message):
     scenario = tmp_path / "triple.toml"

@@ -116,7 +116,7 @@ def test_the_reported_state_is_read_only_in_python():
 # (name, value, message): the package's own messages (mp.simulate's, the core's), nothing restated.
 BAD_VALUES = [
     ("g", float("nan"), "g must be finite, got NaN"),
-    ("g", "heavy", "g must be an array of numbers, got str 'heavy'"),
+    ("g", "heavy", "g must be a number, got str 'heavy'"),
     ("damping", [-1.0, 0.0], "damping[0] must be >= 0 and finite, got -1"),
     ("friction", [0.0, 0.0, 0.0], "friction must be a number or have 2 entries (one per joint), got shape (3,)"),
     ("theta0", [1.0, 2.0, 3.0], "theta0 must have shape (2,) or (..., 2) (one entry per link), got shape (3,)"),

@@ -20,7 +20,7 @@ from ._simulate import DEFAULTS, METHOD_INFO, METHODS, SENSITIVITIES, Crossing, 
 from ._torque import Sinusoid, Table
 from .checkpoint import load_checkpoint
 from .chaos import EnsembleResult, FlipMap, LyapunovResult, ensemble, PoincareSection, plot_poincare, poincare, flip_energy_threshold, flip_map, flip_times, certified_flip_times, lyapunov, trustworthy_until
-from .chaos import INDICATORS, IndicatorMap, IndicatorResult, fli, gali, indicator, indicator_map, megno, sali
+from .chaos import CHAOS_RULES, INDICATORS, IndicatorMap, IndicatorResult, certified_indicator, fli, gali, indicator, indicator_map, megno, sali
 from .chaos import ZeroOneResult, zero_one_test
 from .errors import InputError, IntegrationError
 from .modes import NormalModes, linearize, normal_modes
@@ -37,7 +37,7 @@ __all__ = [
     "sweep", "sweep_flip_map", "open_flip_map", "plot_flip_map",
     "sweep_indicator_map", "open_indicator_map", "plot_indicator_map",
     "ensemble", "EnsembleResult", "poincare", "PoincareSection", "plot_poincare", "lyapunov", "LyapunovResult", "trustworthy_until", "flip_energy_threshold", "flip_times", "certified_flip_times", "flip_map", "FlipMap",
-    "INDICATORS", "indicator", "IndicatorResult", "megno", "fli", "sali", "gali", "indicator_map", "IndicatorMap",
+    "INDICATORS", "CHAOS_RULES", "indicator", "certified_indicator", "IndicatorResult", "megno", "fli", "sali", "gali", "indicator_map", "IndicatorMap",
     "zero_one_test", "ZeroOneResult",
     "make_dataset", "load_dataset", "read_dataset_config", "Dataset",
 ]

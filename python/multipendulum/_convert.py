@@ -40,7 +40,11 @@ def as_float(x: object, name: str, finite: bool = False) -> float:
     """A single real number (NaN and inf pass unless ``finite``: the core checks its ranges)."""
     if type(x) is float and (not finite or math.isfinite(x)):
         return x  # the common case, without NumPy's overhead
-    a = as_floats(x, name)
+    try:
+        a = as_floats(x, name)
+    except InputError:
+        # (not "an array of numbers": one is wanted)
+        raise InputError(f"{name} must be a number, got {_shown(x)}") from None
     if a.ndim != 0:
         raise InputError(f"{name} must be a number, got {_shown(x)}")
     if finite and not np.isfinite(a):

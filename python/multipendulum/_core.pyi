@@ -12,7 +12,8 @@ _Array = npt.ArrayLike
 
 __all__ = ["__version__", "InputError", "IntegrationError", "Torque", "Chain", "simulate", "checkpoint_time", "Event",
            "lyapunov", "first_flips", "certified_flips", "ensemble", "flip_energy_threshold", "METHODS", "METHOD_INFO", "DEFAULTS", "LIMITS", "FORMS", "SENSITIVITIES",
-           "ALGORITHMS", "check_memory", "Axis", "CartForce", "axis_eval", "Steppers", "indicator", "indicators", "INDICATORS"]
+           "ALGORITHMS", "check_memory", "Axis", "CartForce", "axis_eval", "Steppers", "indicator", "indicators", "certified_indicators",
+           "INDICATORS", "CHAOS_RULES"]
 
 __version__: str
 METHODS: List[str]
@@ -23,6 +24,7 @@ FORMS: List[str]
 SENSITIVITIES: List[str]
 ALGORITHMS: Dict[str, Optional[int]]
 INDICATORS: List[str]
+CHAOS_RULES: Dict[str, Tuple[bool, Optional[float]]]
 
 class InputError(ValueError): ...
 
@@ -169,4 +171,8 @@ def indicator(chain: Chain, theta0: Sequence[float], omega0: Sequence[float], t_
 def indicators(chain: Chain, theta0: _F64, omega0: _F64, t_end: float, *, dt: float, name: str, k: Optional[int] = None,
                torque: Optional[Torque] = None, deviations: Optional[Sequence[float]] = None,
                progress: Optional[Callable[[float], Any]] = None) -> _F64: ...
+def certified_indicators(chain: Chain, theta0: _F64, omega0: _F64, t_end: float, *, dt: float, name: str,
+                         k: Optional[int] = None, torque: Optional[Torque] = None,
+                         deviations: Optional[Sequence[float]] = None, threshold: Optional[float] = None,
+                         progress: Optional[Callable[[float], Any]] = None) -> Tuple[_F64, npt.NDArray[np.bool_], float]: ...
 def check_memory(bytes: float, what: str, advice: str) -> None: ...

@@ -14,7 +14,7 @@ from ._convert import Integer, as_float, as_floats
 from ._progress import Progress, reporter
 from ._progress import check as _check_progress
 from ._torque import TorqueLike, core_torque, normalise_torque
-from ._indicators import INDICATORS, IndicatorResult, fli, gali, indicator, megno, sali
+from ._indicators import CHAOS_RULES, INDICATORS, IndicatorResult, certified_indicator, fli, gali, indicator, megno, sali
 from ._zero_one import ZeroOneResult, zero_one_test
 from ._lyapunov import LyapunovResult, _link, lyapunov, trustworthy_until
 from ._simulate import DEFAULTS, Crossing, EventRecord, Flip, simulate
@@ -31,7 +31,7 @@ if TYPE_CHECKING:
 #: ``"theta"`` or ``"omega"`` of a link.
 Vary = Tuple[str, Integer, str, Integer]
 
-__all__ = ["ZeroOneResult", "zero_one_test", "INDICATORS", "IndicatorResult", "indicator", "megno", "fli", "sali", "gali", "IndicatorMap",
+__all__ = ["ZeroOneResult", "zero_one_test", "INDICATORS", "CHAOS_RULES", "IndicatorResult", "indicator", "certified_indicator", "megno", "fli", "sali", "gali", "IndicatorMap",
            "indicator_map", "EnsembleResult", "ensemble", "PoincareSection", "poincare", "plot_poincare", "LyapunovResult", "lyapunov", "trustworthy_until", "flip_energy_threshold", "flip_times", "certified_flip_times", "flip_map", "FlipMap"]
 
 
@@ -177,12 +177,12 @@ def flip_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_max: float = 10
     return FlipMap(x, y, times, allowed, float(t_max), threshold, uncertain, tolerance)
 
 
-def check_certify(certify: object, time_tolerance: Optional[float]) -> bool:
-    """Whether a map is certified; a tolerance given without ``certify`` is refused."""
+def check_certify(certify: object, tolerance: Optional[float], name: str = "time_tolerance") -> bool:
+    """Whether a map is certified; a tolerance (``name``) given without ``certify`` is refused."""
     if not isinstance(certify, (bool, np.bool_)):
         raise InputError(f"certify must be True or False, got {certify!r}")
-    if time_tolerance is not None and not certify:
-        raise InputError("time_tolerance applies to a certified map: pass certify=True with it")
+    if tolerance is not None and not certify:
+        raise InputError(f"{name} applies to a certified map: pass certify=True with it")
     return bool(certify)
 
 @dataclass(frozen=True)
@@ -198,15 +198,25 @@ class IndicatorMap:
     t_end: float
     #: GALI's order (None for the other indicators).
     k: Optional[int] = None
+    #: A certified map's cells whose side of ``threshold`` changes at ``dt / 2`` (None: not certified).
+    uncertain: Union[None, npt.NDArray[np.bool_], ZarrArray] = None
+    #: The value separating regular from chaotic cells a certified map was judged by.
+    threshold: Optional[float] = None
 
 
 def indicator_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_end: float = 50.0, indicator: str = "megno",
                   k: Optional[Integer] = None, dt: float = 0.005, vary: Vary = ("theta", 0, "theta", 1),
                   base_theta: Optional[npt.ArrayLike] = None, base_omega: Optional[npt.ArrayLike] = None,
-                  torque: Optional[TorqueLike] = None, progress: Progress = None) -> IndicatorMap:
+                  torque: Optional[TorqueLike] = None, certify: bool = False, threshold: Optional[float] = None,
+                  progress: Progress = None) -> IndicatorMap:
     """A chaos-indicator map over a grid of two initial values, as :func:`flip_map` varies them
     (``vary``, ``base_theta``, ``base_omega``); each cell :func:`indicator` at ``t_end``, in
-    parallel.
+    parallel (undriven chains without losses in SIMD lanes, eight cells at a time).
+
+    ``certify=True`` computes every cell again at ``dt / 2`` (as :func:`certified_indicator`)
+    and fills ``uncertain``: the cells that fall on different sides of ``threshold`` (default:
+    the indicator's rule of thumb, :data:`CHAOS_RULES`) at the two steps, so that whether they
+    look chaotic depends on the step. The values are still those at ``dt``.
 
     >>> import multipendulum as mp
     >>> m = mp.indicator_map(mp.Chain([1, 1], [1, 1]), [0.2, 2.0], [0.2, 2.5], t_end=40.0)
@@ -222,9 +232,15 @@ def indicator_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_end: float
     th_base = np.zeros(n) if base_theta is None else as_state(base_theta, "base_theta", n)
     om_base = np.zeros(n) if base_omega is None else as_state(base_omega, "base_omega", n)
     theta0, omega0 = _grid(y, x, _check_vary(vary, n), th_base, om_base)
-    values = indicator_fn(chain, theta0, omega0, t_end, indicator, k=k, dt=dt, torque=torque, progress=progress)
-    return IndicatorMap(x, y, cast("npt.NDArray[np.float64]", values), indicator, float(t_end),
-                        None if k is None else int(k))
+    uncertain, used = None, None
+    values: npt.NDArray[np.float64]
+    if check_certify(certify, threshold, "threshold"):
+        values, uncertain, used = certified_indicator(chain, theta0, omega0, t_end, indicator, k=k, dt=dt, torque=torque,
+                                                      threshold=threshold, progress=progress)
+    else:
+        values = cast("npt.NDArray[np.float64]",  # a batch: the values at t_end
+                      indicator_fn(chain, theta0, omega0, t_end, indicator, k=k, dt=dt, torque=torque, progress=progress))
+    return IndicatorMap(x, y, values, indicator, float(t_end), None if k is None else int(k), uncertain, used)
 
 
 indicator_fn = indicator

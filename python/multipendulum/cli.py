@@ -535,9 +535,12 @@ def _add_map_options(p: argparse.ArgumentParser, zarr_what: str) -> None:
 def _add_flip_options(p: argparse.ArgumentParser, only: str = "") -> None:
     p.add_argument("--link", type=int, metavar="K", help=f"time the flips of link K only (default: any link){only}")
     p.add_argument("--linear", action="store_true", help=f"linear colour scale in time (default logarithmic){only}")
+    what = ("whose flip decision, or time by more than --time-tolerance, changes" if not only else
+            "that change: a flip's decision or time (by more than --time-tolerance), an indicator's side of "
+            "--threshold")
     p.add_argument("--certify", action="store_true",
-                   help="compute every cell again at dt/2 and mark (magenta) and count the cells whose flip "
-                        f"decision, or time by more than --time-tolerance, changes (three times the work){only}")
+                   help=f"compute every cell again at dt/2 and mark (magenta) and count the cells {what} "
+                        "(three times the work)")
     p.add_argument("--time-tolerance", type=float, metavar="SECONDS",
                    help=f"with --certify: how far a flip time may move at dt/2 (default: one step dt){only}")
 
@@ -756,6 +759,9 @@ def _add_atlas(sub, common) -> None:
     p.add_argument("--dt", type=float, metavar="SECONDS",
                    help=f"rk4 step (default {_indicator_dt():g} for the indicators, {FLIP_DT:g} for flip)")
     _add_flip_options(p, only="; --indicator flip only")
+    p.add_argument("--threshold", type=float, metavar="VALUE",
+                   help="with --certify: the value separating regular from chaotic cells (default: the "
+                        "indicator's rule of thumb, MEGNO 4, SALI and GALI 1e-8; FLI, OFLI and lyapunov need one)")
     p.set_defaults(handler=_cmd_atlas)
 
 
@@ -768,19 +774,20 @@ def _indicator_dt() -> float:
     return float(inspect.signature(mp.indicator_map).parameters["dt"].default)
 
 
-#: The rule of thumb the summary counts "chaotic-looking" cells by, for the indicators that have one.
-_CHAOTIC = {"megno": (">", 4.0), "sali": ("<", 1e-8), "gali": ("<", 1e-8)}
-
-
-def _atlas_stats(values, name: str, rows: int = 256):
-    """min, mean and max of the finite values, the number of cells without one, and the number
-    the rule of thumb calls chaotic (None without a rule); a block of rows at a time (the map may
-    be a Zarr store larger than memory)."""
+def _atlas_stats(values, name: str, rows: int = 256, uncertain=None):
+    """min, mean and max of the finite values, the number of cells without one, the number the
+    core's rule of thumb calls chaotic (None without a rule) and of uncertain cells (0 without
+    flags); a block of rows at a time (the map may be a Zarr store larger than memory)."""
     import numpy as np
 
-    lo, hi, total, finite, bad, chaotic = np.inf, -np.inf, 0.0, 0, 0, 0
-    rule = _CHAOTIC.get(name)
+    import multipendulum as mp
+
+    lo, hi, total, finite, bad, chaotic, unsure = np.inf, -np.inf, 0.0, 0, 0, 0, 0
+    above, level = mp.CHAOS_RULES[name]
+    rule = None if level is None else (">" if above else "<", level)
     for r in range(0, values.shape[0], rows):
+        if uncertain is not None:
+            unsure += int(np.asarray(uncertain[r:r + rows], dtype=bool).sum())
         v = np.asarray(values[r:r + rows], dtype=float)
         ok = np.isfinite(v)
         good = v[ok]
@@ -792,7 +799,7 @@ def _atlas_stats(values, name: str, rows: int = 256):
         if rule is not None:
             chaotic += int((good > rule[1]).sum() if rule[0] == ">" else (good < rule[1]).sum())
     mean = total / finite if finite else float("nan")
-    return lo, mean, hi, bad, (chaotic if rule is not None else None)
+    return lo, mean, hi, bad, (chaotic if rule is not None else None), unsure
 
 
 def _atlas_budget(args, n: int, t_end: float, dt: float, what: str) -> None:
@@ -814,7 +821,7 @@ def _atlas_budget(args, n: int, t_end: float, dt: float, what: str) -> None:
                               "(with --dask ADDRESS to compute it on a cluster)")
     if args.dask is None and math.isfinite(t_end) and t_end > 0 and math.isfinite(dt) and dt > 0:
         steps = math.ceil(t_end / dt)
-        work = cells * steps
+        work = cells * steps * (3 if args.certify else 1)  # certified: again at dt/2
         if work > MAX_LOCAL_MAP_STEPS:
             raise mp.InputError(
                 f"{what} of {size} x {size} initial states with t_end / dt = {steps:.4g} steps each is "
@@ -834,14 +841,21 @@ def _cmd_atlas(args) -> int:
     if name != "gali" and args.k is not None:
         raise mp.InputError(f"--k is GALI's order (--indicator gali); {name} takes none")
     if name == "flip":
+        if args.threshold is not None:
+            raise mp.InputError("--threshold is for the indicators' certified maps; a flip map takes --time-tolerance")
         # The flip-time map is `fractal`'s, made by the same code: --t-end is its --t-max.
         args.t_max = args.t_end
         args.dt = FLIP_DT if args.dt is None else args.dt
         return _cmd_fractal(args)
-    for option, given in (("--link", args.link is not None), ("--linear", args.linear), ("--certify", args.certify),
+    for option, given in (("--link", args.link is not None), ("--linear", args.linear),
                           ("--time-tolerance", args.time_tolerance is not None)):
         if given:
             raise mp.InputError(f"{option} is for --indicator flip only (a flip-time map)")
+    if args.threshold is not None and not args.certify:
+        raise mp.InputError("--threshold applies to a certified map: add --certify")
+    if args.certify and args.threshold is None and mp.CHAOS_RULES[name][1] is None:
+        raise mp.InputError(f"--certify with --indicator {name} needs --threshold VALUE, the value above which a "
+                            "cell counts as chaotic (megno, sali and gali have their own)")
     scenario = load_scenario(args.scenario)
     chain = scenario.build_chain()
     n = chain.n
@@ -859,13 +873,13 @@ def _cmd_atlas(args) -> int:
     x, y = _map_axes(args, vary)
     base_theta, base_omega = np.asarray(scenario.theta0, float), np.asarray(scenario.omega0, float)
     kwargs = dict(t_end=t_end, indicator=name, k=args.k, dt=dt, vary=vary, base_theta=base_theta,
-                  base_omega=base_omega)
+                  base_omega=base_omega, certify=args.certify, threshold=args.threshold)
     # Arguments checked on one state (the core refuses an empty batch only after checking them):
     # a bad one fails here, before the header and the work.
     mp.indicator(chain, base_theta[None], base_omega[None], t_end, name, k=args.k, dt=dt)
     title = scenario.name or args.scenario.stem
     _say(args, f"{title}: {label} map of {args.size} x {args.size} initial states, N = {n}, "
-               f"t_end = {t_end:g} s, dt = {dt:g} s")
+               f"t_end = {t_end:g} s, dt = {dt:g} s" + (" (certified: again at dt/2)" if args.certify else ""))
     if scenario.torque is not None:
         _say(args, "  note: the scenario's torque is not applied; the map is of the free chain")
     start = time.perf_counter()
@@ -883,15 +897,20 @@ def _cmd_atlas(args) -> int:
         bar(1.0)
     wall = time.perf_counter() - start
     total = args.size * args.size
-    lo, mean, hi, bad, chaotic = _atlas_stats(im.values, name)
+    lo, mean, hi, bad, chaotic, uncertain = _atlas_stats(im.values, name, uncertain=im.uncertain)
     line = f"  {label} at t_end: min {lo:.4g}, mean {mean:.4g}, max {hi:.4g}" if bad < total \
         else f"  {label} at t_end: no finite value"
     if bad:
         line += f"; no finite value {100 * bad / total:.1f}%"
-    if chaotic is not None:
-        op, level = _CHAOTIC[name]
+    above, level = mp.CHAOS_RULES[name]
+    if chaotic is not None and level is not None:
+        op = ">" if above else "<"
         line += f"; {100 * chaotic / total:.1f}% with {label} {op} {level:g} (chaotic by the usual rule of thumb)"
     _say(args, line + f"; wall time {wall:.3g} s")
+    if im.uncertain is not None:
+        op = ">" if above else "<"
+        _say(args, f"  certified: {100 * uncertain / total:.2f}% of cells uncertain ({uncertain} of {total}: "
+                   f"{label} {op} {im.threshold:g} changes at dt/2)")
     if args.zarr is not None:
         _say(args, f"wrote {args.zarr}")
     path = plot_indicator_map(im, args.output, chain=chain, vary=vary, base_theta=base_theta, base_omega=base_omega,

@@ -25,7 +25,7 @@ from typing import NamedTuple, Optional, Sequence, Tuple, Union
 import numpy as np
 
 from ._chain import Chain, as_state
-from .chaos import FlipMap, IndicatorMap
+from .chaos import CHAOS_RULES, FlipMap, IndicatorMap
 from .errors import InputError
 
 __all__ = ["plot_flip_map", "plot_indicator_map", "indicator_label", "INDICATOR_STYLES", "LOG_FLOOR", "energy_grid",
@@ -341,7 +341,8 @@ def plot_indicator_map(im: IndicatorMap, path: Optional[PathLike] = None, chain:
     FLI and OFLI linear over the map's range, SALI and GALI logarithmic down to
     :data:`LOG_FLOOR` (smaller values, zero included, drawn at the floor), the largest Lyapunov
     exponent linear in 1/s. Chaotic orbits are at the bright end for every indicator; values
-    beyond the scale get an arrow on the colour bar; a cell without a finite value is white.
+    beyond the scale get an arrow on the colour bar; a cell without a finite value is white. A
+    certified map (``certify=True``) draws its uncertain cells in magenta, counted in the legend.
     ``vmin``/``vmax`` override the scale's limits. The title names the indicator (``k``: GALI's
     order), ``t_end`` and, given ``chain``, the chain (``title`` replaces it); ``vary``,
     ``base_theta`` and ``base_omega`` (those the map was made with) label the axes and list the
@@ -362,6 +363,7 @@ def plot_indicator_map(im: IndicatorMap, path: Optional[PathLike] = None, chain:
     y = np.asarray(im.y, dtype=float)
     sx, sy = _every(x.size), _every(y.size)
     values = np.asarray(im.values[::sy, ::sx], dtype=float)
+    uncertain = None if im.uncertain is None else np.asarray(im.uncertain[::sy, ::sx], dtype=bool)
     xs, ys = np.degrees(x[::sx]), np.degrees(y[::sy])
     if values.shape != (ys.size, xs.size):
         raise InputError(f"indicator map values must have shape (len(y), len(x)) = {(y.size, x.size)}, "
@@ -382,7 +384,7 @@ def plot_indicator_map(im: IndicatorMap, path: Optional[PathLike] = None, chain:
     words = _chain_words(chain)
     default = f"{name} at t = {t_end:g} s" + (f": {words}" if words else "")
     heading = fit_title(title or default, 0.94 * size, 11.0, max_lines=2)
-    bottom = 0.16 if finite.all() else 0.2
+    bottom = 0.16 if finite.all() and uncertain is None else 0.2
     height = 0.90 - bottom - 0.05 * heading.count("\n")
     ax = fig.add_axes((0.12, bottom, 0.66, height))
     cax = fig.add_axes((0.81, bottom, 0.03, height))
@@ -390,6 +392,9 @@ def plot_indicator_map(im: IndicatorMap, path: Optional[PathLike] = None, chain:
     cmap = matplotlib.colormaps[CMAP + ("_r" if style.reverse else "")].with_extremes(bad=NEVER_COLOR)
     image = ax.imshow(np.ma.masked_array(shown, ~finite), origin="lower", extent=extent, cmap=cmap, norm=norm,
                       interpolation="antialiased", interpolation_stage="rgba", aspect="auto")
+    if uncertain is not None and uncertain.any():
+        ax.imshow(np.ma.masked_array(np.ones_like(values), ~uncertain), origin="lower", extent=extent,
+                  cmap=matplotlib.colors.ListedColormap([UNCERTAIN_COLOR]), interpolation="nearest", aspect="auto")
     cb = fig.colorbar(image, cax=cax, extend=extend)
     label = style.label.replace("GALI", f"GALI$_{{{int(k)}}}$", 1) if im.indicator == "gali" and k is not None \
         else style.label
@@ -408,10 +413,18 @@ def plot_indicator_map(im: IndicatorMap, path: Optional[PathLike] = None, chain:
         ticks = [t for t in ticks if lo <= t <= hi]
         cb.set_ticks(ticks, labels=[text if t == level else f"{t:g}" for t in ticks])
     _label_axes(ax, extent, (kx, ix, ky, iy))
+    handles = []
     if not finite.all():
-        fig.legend(handles=[Patch(facecolor=NEVER_COLOR, edgecolor="0.3", lw=0.6,
-                                  label=f"no finite value ({100 * (~finite).mean():.1f}%)")],
-                   loc="lower center", bbox_to_anchor=(0.46, 0.0), fontsize=8, frameon=False, handlelength=1.8)
+        handles.append(Patch(facecolor=NEVER_COLOR, edgecolor="0.3", lw=0.6,
+                             label=f"no finite value ({100 * (~finite).mean():.1f}%)"))
+    if uncertain is not None:
+        side = ">" if CHAOS_RULES.get(im.indicator, (True, None))[0] else "<"
+        handles.append(Patch(facecolor=UNCERTAIN_COLOR, edgecolor="0.3", lw=0.6,
+                             label=f"uncertain: {name} {side} {im.threshold:g} changes at dt / 2 "
+                                   f"({100 * uncertain.mean():.1f}%)"))
+    if handles:
+        fig.legend(handles=handles, loc="lower center", bbox_to_anchor=(0.46, 0.0), fontsize=8, frameon=False,
+                   handlelength=1.8, ncol=len(handles))
     fig.suptitle(heading, fontsize=11, y=0.975)
     # The chain is named in the heading, or here when a title replaced it.
     subtitle = f"{y.size} x {x.size} initial states" + (f"; {words}" if title and words else "")

@@ -54,8 +54,8 @@ from ._convert import Integer
 from ._progress import check as _check_progress
 from ._progress import reporter
 from ._torque import TorqueLike
-from .chaos import (FlipMap, IndicatorMap, Vary, _check_vary, _grid, certified_flip_times, check_certify, flip_threshold,
-                    flip_times, indicator_fn)
+from .chaos import (FlipMap, IndicatorMap, Vary, _check_vary, _grid, certified_flip_times, certified_indicator,
+                    check_certify, flip_threshold, flip_times, indicator_fn)
 from .errors import InputError
 
 if TYPE_CHECKING:
@@ -475,17 +475,31 @@ def _map_indicator_block(yb: npt.NDArray[np.float64], xb: npt.NDArray[np.float64
                 indicator_fn(chain, theta0, omega0, t_end, indicator, k=k, dt=dt, torque=torque))
 
 
+def _map_certified_indicator_block(yb: npt.NDArray[np.float64], xb: npt.NDArray[np.float64], chain: Chain,
+                                   vary: Tuple[str, int, str, int], th_base: npt.NDArray[np.float64],
+                                   om_base: npt.NDArray[np.float64], t_end: float, indicator: str,
+                                   k: Optional[Integer], dt: float, torque: Optional[TorqueLike],
+                                   threshold: Optional[float]) -> npt.NDArray[np.float64]:
+    # A certified block's values and uncertain flags (as 0 or 1) along a last axis of 2.
+    theta0, omega0 = _grid(yb, xb, vary, th_base, om_base)
+    values, uncertain, _ = certified_indicator(chain, theta0, omega0, t_end, indicator, k=k, dt=dt, torque=torque,
+                                               threshold=threshold)
+    return np.stack([values, uncertain.astype(np.float64)], axis=-1)
+
+
 def sweep_indicator_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_end: float = 50.0,
                         indicator: str = "megno", k: Optional[Integer] = None, dt: float = 0.005,
                         vary: Vary = ("theta", 0, "theta", 1), base_theta: Optional[npt.ArrayLike] = None,
                         base_omega: Optional[npt.ArrayLike] = None, torque: Optional[TorqueLike] = None,
+                        certify: bool = False, threshold: Optional[float] = None,
                         chunks: Union[None, Integer, Tuple[Integer, Integer]] = None, scheduler: Scheduler = None,
                         zarr: Optional[PathLike] = None, progress: Progress = None) -> IndicatorMap:
     """:func:`multipendulum.indicator_map` on Dask, for grids too large for one process.
 
     Same arguments and the same result (bit for bit: each cell's value does not depend on what
-    is computed with it) as ``indicator_map``; in addition ``chunks``, ``scheduler`` and ``zarr``
-    as for :func:`sweep_flip_map`. Each task builds its own part of the initial grid from ``x``
+    is computed with it) as ``indicator_map``, a certified one too (``certify``, ``threshold``:
+    its store gets an array ``uncertain`` and the attribute ``threshold``); in addition
+    ``chunks``, ``scheduler`` and ``zarr`` as for :func:`sweep_flip_map`. Each task builds its own part of the initial grid from ``x``
     and ``y`` and calls :func:`multipendulum.indicator` on it.
 
     The arguments (``indicator``, ``k``, ``t_end``, ``dt``, ``torque``) are checked before any task
@@ -511,31 +525,49 @@ def sweep_indicator_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_end:
     n = chain.n
     # Checks, here rather than in every task: the core refuses an empty batch after checking the
     # arguments, so one state (the base state, as a batch of one: no history) is run instead.
-    indicator_fn(chain, th_base[None], om_base[None], t_end, indicator, k=k, dt=dt, torque=torque)
+    certified = check_certify(certify, threshold, "threshold")
+    used: Optional[float] = None
+    if certified:
+        # (and the threshold as the core takes it)
+        used = certified_indicator(chain, th_base[None], om_base[None], t_end, indicator, k=k, dt=dt, torque=torque,
+                                   threshold=threshold)[2]
+    else:
+        indicator_fn(chain, th_base[None], om_base[None], t_end, indicator, k=k, dt=dt, torque=torque)
     rows, cols = _chunk_shape(chunks, y.size, x.size)
     rows, cols = min(rows, y.size), min(cols, x.size)
     _check_chunks(rows, cols, n, -(-y.size // rows) * -(-x.size // cols))
     if path is None:
-        # Gathered here: the value (8 bytes) of every cell, and Dask's pieces of them until joined.
-        _core.check_memory(float(x.size) * y.size * 8.0 * 2,
+        # Gathered here: the value (8 bytes) of every cell, and Dask's pieces of them until joined;
+        # certified, the uncertain flags (1) and the blocks' stacked pairs (16).
+        _core.check_memory(float(x.size) * y.size * (25.0 if certified else 8.0) * 2,
                            f"gathering an indicator map of {y.size} x {x.size} cells",
                            "pass zarr=PATH to write it chunk by chunk instead (multipendulum atlas --zarr)")
     Y = da.from_array(y, chunks=rows)
     X = da.from_array(x, chunks=cols)
-    kernel = functools.partial(_map_indicator_block, chain=chain, vary=vary, th_base=th_base, om_base=om_base,
-                               t_end=float(t_end), indicator=indicator, k=k, dt=float(dt), torque=torque)
-    values = da.blockwise(kernel, "ij", Y, "i", X, "j", dtype=np.float64, meta=np.empty((0, 0)))
+    block: Dict[str, Any] = dict(chain=chain, vary=vary, th_base=th_base, om_base=om_base, t_end=float(t_end),
+                                 indicator=indicator, k=k, dt=float(dt), torque=torque)
+    arrays: List[Tuple[str, Any]]
+    if certified:
+        # One task per block runs both steps; the values and flags are its two slices.
+        kernel = functools.partial(_map_certified_indicator_block, threshold=threshold, **block)
+        both = da.blockwise(kernel, "ijk", Y, "i", X, "j", new_axes={"k": 2}, dtype=np.float64,
+                            meta=np.empty((0, 0, 0)))
+        arrays = [("values", both[..., 0]), ("uncertain", both[..., 1] != 0.0)]
+    else:
+        kernel = functools.partial(_map_indicator_block, **block)
+        arrays = [("values", da.blockwise(kernel, "ij", Y, "i", X, "j", dtype=np.float64, meta=np.empty((0, 0))))]
     label = f"{indicator} map"
+    k_ = None if k is None else int(k)
     if path is None:
         with _scheduler(scheduler) as how, reporter(progress, label) as report:
-            (v,) = _compute(dask, how, report, values)
-        return IndicatorMap(x, y, v, indicator, float(t_end), None if k is None else int(k))
-    attrs = {"indicator": indicator, "k": None if k is None else int(k), "t_end": float(t_end), "dt": float(dt),
+            got = _compute(dask, how, report, *(arr for _, arr in arrays))
+        return IndicatorMap(x, y, got[0], indicator, float(t_end), k_, got[1] if certified else None, used)
+    attrs = {"indicator": indicator, "k": k_, "t_end": float(t_end), "dt": float(dt),
              "vary": list(vary), "base_theta": th_base.tolist(), "base_omega": om_base.tolist(),
-             "chain": chain.to_dict()}
+             "chain": chain.to_dict(), "threshold": used}
     with _fresh_store(path, "multipendulum.indicator_map", attrs), _scheduler(scheduler) as how, \
             reporter(progress, label) as report:
-        stores = [da.to_zarr(values, path, component="values", compute=False)]
+        stores = [da.to_zarr(arr, path, component=name, compute=False) for name, arr in arrays]
         stores += [da.to_zarr(da.from_array(v, chunks=v.size), path, component=name, compute=False)
                    for name, v in (("x", x), ("y", y))]
         _compute(dask, how, report, *stores)
@@ -548,6 +580,10 @@ def open_indicator_map(path: PathLike) -> IndicatorMap:
     attributes (``k``, ``dt``, ``vary``, the chain...) are in ``zarr.open_group(path).attrs``."""
     group = _open_store(path, "multipendulum.indicator_map", "a chaos-indicator map")
     k = group.attrs.get("k")
+    # A certified map's flags and threshold too (stores of earlier versions have no threshold).
+    threshold = group.attrs.get("threshold")
     return IndicatorMap(np.asarray(cast("ZarrArray", group["x"])[:]), np.asarray(cast("ZarrArray", group["y"])[:]),
                         cast("ZarrArray", group["values"]), str(group.attrs["indicator"]),
-                        float(cast(float, group.attrs["t_end"])), None if k is None else int(cast(int, k)))
+                        float(cast(float, group.attrs["t_end"])), None if k is None else int(cast(int, k)),
+                        cast("ZarrArray", group["uncertain"]) if threshold is not None else None,
+                        None if threshold is None else float(cast(float, threshold)))

@@ -18,7 +18,16 @@ pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(flip_energy_threshold, m)?)?;
     m.add_function(wrap_pyfunction!(indicator, m)?)?;
     m.add_function(wrap_pyfunction!(indicators, m)?)?;
-    m.add("INDICATORS", core::chaos::indicators::Indicator::NAMES.to_vec())?;
+    m.add_function(wrap_pyfunction!(certified_indicators, m)?)?;
+    use core::chaos::indicators::Indicator;
+    m.add("INDICATORS", Indicator::NAMES.to_vec())?;
+    // name -> (chaotic above the threshold?, the threshold or None), the core's rule of thumb.
+    let rules = pyo3::types::PyDict::new(m.py());
+    for name in Indicator::NAMES {
+        let which = Indicator::parse(name, Some(2)).expect("the core's own names parse");
+        rules.set_item(name, which.chaos_rule())?;
+    }
+    m.add("CHAOS_RULES", rules)?;
     Ok(())
 }
 
@@ -80,6 +89,39 @@ fn indicators<'py>(
     })?
     .map_err(|e| to_py(py, e))?;
     Ok(vec_out(py, out))
+}
+
+/// [`indicators`] certified: the values at `dt`, whether each row is uncertain (it falls on
+/// the other side of the threshold at `dt / 2`; `core::chaos::indicators::certified_indicators`)
+/// and the threshold used.
+#[pyfunction]
+#[pyo3(signature = (chain, theta0, omega0, t_end, *, dt, name, k=None, torque=None, deviations=None, threshold=None, progress=None))]
+#[allow(clippy::too_many_arguments)]
+fn certified_indicators<'py>(
+    py: Python<'py>,
+    chain: &PyChain,
+    theta0: PyReadonlyArray1<'py, f64>,
+    omega0: PyReadonlyArray1<'py, f64>,
+    t_end: f64,
+    dt: f64,
+    name: &str,
+    k: Option<usize>,
+    torque: Option<PyRef<'py, PyTorque>>,
+    deviations: Option<Vec<f64>>,
+    threshold: Option<f64>,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<bool>>, f64)> {
+    use core::chaos::indicators::{certified_indicators, Indicator};
+    let c = &chain.inner;
+    let which = Indicator::parse(name, k).map_err(|e| to_py(py, e))?;
+    let torque = builtin_only(py, c.n(), torque.as_deref(), "chaos indicators")?;
+    let (theta0, omega0) = (slice("theta0", &theta0)?, slice("omega0", &omega0)?);
+    let watch = Watch::units(2 * (theta0.len() / c.n().max(1)) as u64);
+    let out = interruptible(py, &watch, progress.as_ref(), false, || {
+        certified_indicators(c, theta0, omega0, t_end, dt, which, &torque, deviations.as_deref(), threshold, &watch)
+    })?
+    .map_err(|e| to_py(py, e))?;
+    Ok((vec_out(py, out.values), PyArray1::from_vec(py, out.uncertain), out.threshold))
 }
 
 /// Lyapunov exponents by the variational equations; see `multipendulum_core::chaos::lyapunov`.
