@@ -20,11 +20,12 @@ from ._simulate import DEFAULTS, METHOD_INFO, METHODS, SENSITIVITIES, Crossing, 
 from ._torque import Sinusoid, Table
 from .checkpoint import load_checkpoint
 from .chaos import EnsembleResult, FlipMap, LyapunovResult, ensemble, PoincareSection, plot_poincare, poincare, flip_energy_threshold, flip_map, flip_times, certified_flip_times, lyapunov, trustworthy_until
+from .chaos import FlipVolume, flip_volume
 from .chaos import CHAOS_RULES, INDICATORS, IndicatorMap, IndicatorResult, certified_indicator, fli, gali, indicator, indicator_map, megno, sali
 from .chaos import ZeroOneResult, zero_one_test
 from .errors import InputError, IntegrationError
 from .modes import NormalModes, linearize, normal_modes
-from .sweeps import open_flip_map, open_indicator_map, sweep, sweep_flip_map, sweep_indicator_map
+from .sweeps import open_flip_map, open_flip_volume, open_indicator_map, sweep, sweep_flip_map, sweep_flip_volume, sweep_indicator_map
 
 #: The package's version: the compiled core's (the workspace's, kept equal to pyproject's), right
 #: also when the package is imported from a source tree without install metadata (bench/.venv does so).
@@ -35,6 +36,7 @@ __all__ = [
     "InputError", "IntegrationError", "__version__",
     "normal_modes", "NormalModes", "linearize", "animate_mode", "plot_modes",
     "sweep", "sweep_flip_map", "open_flip_map", "plot_flip_map",
+    "flip_volume", "FlipVolume", "sweep_flip_volume", "open_flip_volume", "plot_flip_volume",
     "sweep_indicator_map", "open_indicator_map", "plot_indicator_map",
     "ensemble", "EnsembleResult", "poincare", "PoincareSection", "plot_poincare", "lyapunov", "LyapunovResult", "trustworthy_until", "flip_energy_threshold", "flip_times", "certified_flip_times", "flip_map", "FlipMap",
     "INDICATORS", "CHAOS_RULES", "indicator", "certified_indicator", "IndicatorResult", "megno", "fli", "sali", "gali", "indicator_map", "IndicatorMap",
@@ -50,6 +52,7 @@ def __getattr__(name: str) -> _typing.Any:
         "animate_mode": ("modes", "animate_mode"),
         "plot_modes": ("modes", "plot_modes"),
         "plot_flip_map": ("fractal", "plot_flip_map"),
+        "plot_flip_volume": ("fractal", "plot_flip_volume"),
         "plot_indicator_map": ("fractal", "plot_indicator_map"),
         "plot": ("plotting", "plot"),
         "save_results": ("results", "save_results"),

@@ -3,7 +3,7 @@ the Rust core, in parallel and without the GIL; this module validates and shapes
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, List, Optional, Sequence, Tuple, Union, cast
+from typing import TYPE_CHECKING, Any, List, Optional, Sequence, Tuple, Union, cast
 
 import numpy as np
 import numpy.typing as npt
@@ -32,7 +32,8 @@ if TYPE_CHECKING:
 Vary = Tuple[str, Integer, str, Integer]
 
 __all__ = ["ZeroOneResult", "zero_one_test", "INDICATORS", "CHAOS_RULES", "IndicatorResult", "indicator", "certified_indicator", "megno", "fli", "sali", "gali", "IndicatorMap",
-           "indicator_map", "EnsembleResult", "ensemble", "PoincareSection", "poincare", "plot_poincare", "LyapunovResult", "lyapunov", "trustworthy_until", "flip_energy_threshold", "flip_times", "certified_flip_times", "flip_map", "FlipMap"]
+           "indicator_map", "EnsembleResult", "ensemble", "PoincareSection", "poincare", "plot_poincare", "LyapunovResult", "lyapunov", "trustworthy_until", "flip_energy_threshold", "flip_times", "certified_flip_times", "flip_map", "FlipMap",
+           "flip_volume", "FlipVolume"]
 
 
 def flip_energy_threshold(chain: Chain, link: Optional[Integer] = None) -> float:
@@ -109,30 +110,48 @@ def flip_threshold(chain: Chain, link: Optional[Integer], torque: Optional[Torqu
 
 
 def _check_vary(vary: Vary, n: int) -> Tuple[str, int, str, int]:
+    return cast("Tuple[str, int, str, int]", _check_varied(vary, n, 2))
+
+
+def _check_varied(vary: Sequence[Any], n: int, dims: int) -> Tuple[Any, ...]:
+    """``vary`` as ``dims`` (kind, link) pairs, checked: x's first."""
+    axes = "xyz"[:dims]
+    shape = ", ".join(f"kind_{a}, link_{a}" for a in axes)
     try:
-        kx, ix, ky, iy = vary
-    except (TypeError, ValueError):
-        raise InputError(f"vary must be (kind_x, link_x, kind_y, link_y), got {vary!r}") from None
-    for kind, idx in ((kx, ix), (ky, iy)):
+        pairs = [(vary[2 * d], vary[2 * d + 1]) for d in range(dims)]
+        if len(vary) != 2 * dims:
+            raise ValueError
+    except (TypeError, ValueError, IndexError, KeyError):
+        raise InputError(f"vary must be ({shape}), got {vary!r}") from None
+    times = {2: "twice", 3: "three times"}[dims]
+    for kind, idx in pairs:
         if kind not in ("theta", "omega") or isinstance(idx, bool) or not isinstance(idx, (int, np.integer)) \
                 or not 0 <= idx < n:
-            raise InputError(f"vary must name ('theta'|'omega', link index < {n}) twice, got {vary!r}")
-    if (kx, ix) == (ky, iy):
-        raise InputError(f"vary must name two different quantities, got {vary!r}")
-    return kx, int(ix), ky, int(iy)
+            raise InputError(f"vary must name ('theta'|'omega', link index < {n}) {times}, got {vary!r}")
+    if len(set((k, int(i)) for k, i in pairs)) != dims:
+        words = {2: "two", 3: "three"}[dims]
+        raise InputError(f"vary must name {words} different quantities, got {vary!r}")
+    return tuple(v for kind, idx in pairs for v in (kind, int(idx)))
 
 
 def _grid(yb: npt.NDArray[np.float64], xb: npt.NDArray[np.float64], vary: Tuple[str, int, str, int],
           th_base: npt.NDArray[np.float64],
           om_base: npt.NDArray[np.float64]) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
     # The initial states of a map's grid (values copied, never computed); also per Dask chunk.
-    kx, ix, ky, iy = vary
-    X, Y = np.meshgrid(xb, yb)
+    return _grid_of((yb, xb), vary[2:] + vary[:2], th_base, om_base)
+
+
+def _grid_of(values: Sequence[npt.NDArray[np.float64]], vary: Sequence[Any], th_base: npt.NDArray[np.float64],
+             om_base: npt.NDArray[np.float64]) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """The initial states of a grid whose axes, outermost first, take ``values[d]`` for the
+    quantity ``(vary[2 d], vary[2 d + 1])``: shape ``(len(values[0]), ..., N)``."""
+    mesh = np.meshgrid(*values, indexing="ij")
     n = th_base.size
-    theta0 = np.broadcast_to(th_base, X.shape + (n,)).copy()
-    omega0 = np.broadcast_to(om_base, X.shape + (n,)).copy()
-    for kind, idx, values in ((kx, ix, X), (ky, iy, Y)):
-        (theta0 if kind == "theta" else omega0)[..., idx] = values
+    theta0 = np.broadcast_to(th_base, mesh[0].shape + (n,)).copy()
+    omega0 = np.broadcast_to(om_base, mesh[0].shape + (n,)).copy()
+    for d, grid in enumerate(mesh):
+        kind, idx = vary[2 * d], vary[2 * d + 1]
+        (theta0 if kind == "theta" else omega0)[..., idx] = grid
     return theta0, omega0
 
 
@@ -175,6 +194,92 @@ def flip_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_max: float = 10
     threshold = flip_threshold(chain, link, torque)
     allowed = cast("npt.NDArray[np.bool_]", chain.energy(theta0, omega0) >= threshold)  # theta0 has a grid's axes
     return FlipMap(x, y, times, allowed, float(t_max), threshold, uncertain, tolerance)
+
+
+#: Three varied quantities of a 3-D map: ``(kind_x, link_x, kind_y, link_y, kind_z, link_z)``.
+Vary3 = Tuple[str, Integer, str, Integer, str, Integer]
+
+
+@dataclass(frozen=True)
+class FlipVolume:
+    """A 3-D flip-time map: ``times[k, i, j]`` for the initial values ``x[j]``, ``y[i]`` and
+    ``z[k]`` of the three varied quantities (``vary``); the rest as :class:`FlipMap`, whose
+    slices it holds (:meth:`slice`)."""
+
+    x: npt.NDArray[np.float64]
+    y: npt.NDArray[np.float64]
+    z: npt.NDArray[np.float64]
+    #: NumPy arrays, or the on-disk Zarr arrays of a map written to a store (:func:`sweep_flip_volume`).
+    times: Union[npt.NDArray[np.float64], ZarrArray]
+    allowed: Union[npt.NDArray[np.bool_], ZarrArray]
+    t_max: float
+    threshold: float
+    vary: Tuple[str, int, str, int, str, int]
+    uncertain: Union[None, npt.NDArray[np.bool_], ZarrArray] = None
+    time_tolerance: Optional[float] = None
+
+    def slice(self, k: Integer) -> FlipMap:
+        """The 2-D map at ``z[k]`` (read from the store for a Zarr volume)."""
+        if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not -self.z.size <= k < self.z.size:
+            raise InputError(f"k must be an index of z (length {self.z.size}), got {k!r}")
+        k = int(k)
+        return FlipMap(self.x, self.y, np.asarray(self.times[k]), np.asarray(self.allowed[k]), self.t_max,
+                       self.threshold, None if self.uncertain is None else np.asarray(self.uncertain[k]),
+                       self.time_tolerance)
+
+
+def _grid_axes(**axes: npt.ArrayLike) -> List[npt.NDArray[np.float64]]:
+    """A grid's axes (name: values), each checked a non-empty array of finite numbers."""
+    out = []
+    for name, v in axes.items():
+        arr = as_floats(v, name).ravel()
+        if arr.size == 0 or not np.isfinite(arr).all():
+            raise InputError(f"{name} must be a non-empty array of finite numbers")
+        out.append(arr)
+    return out
+
+
+def flip_volume(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, z: npt.ArrayLike, t_max: float = 10.0,
+                dt: float = 0.01, vary: Vary3 = ("theta", 0, "theta", 1, "theta", 2),
+                base_theta: Optional[npt.ArrayLike] = None, base_omega: Optional[npt.ArrayLike] = None,
+                link: Optional[Integer] = None, torque: Optional[TorqueLike] = None, certify: bool = False,
+                time_tolerance: Optional[float] = None, progress: Progress = None) -> FlipVolume:
+    """A flip-time map over a grid of three initial values (default the triple pendulum's three
+    angles): :func:`flip_map` with a third axis ``z``, ``times`` of shape ``(len(z), len(y),
+    len(x))``. Held in memory: for large grids :func:`multipendulum.sweeps.sweep_flip_volume`
+    writes it to Zarr chunk by chunk. ``FlipVolume.slice(k)`` is the 2-D map at ``z[k]``, and
+    :func:`multipendulum.fractal.plot_flip_volume` draws slices.
+
+    >>> import numpy as np, multipendulum as mp
+    >>> g = np.linspace(-np.pi, np.pi, 9)
+    >>> fv = mp.flip_volume(mp.Chain([1, 1, 1], [1, 1, 1]), g, g, g[3:6], t_max=5.0)
+    >>> fv.times.shape
+    (3, 9, 9)
+    >>> bool(np.array_equal(fv.slice(1).times, mp.flip_map(mp.Chain([1, 1, 1], [1, 1, 1]), g, g, t_max=5.0,
+    ...      base_theta=[0, 0, g[4]]).times))
+    True
+    """
+    check_chain(chain)
+    _check_progress(progress)
+    x, y, z = _grid_axes(x=x, y=y, z=z)
+    n = chain.n
+    _core.check_memory(float(x.size) * y.size * z.size * (2 * n + 3) * 8.0,
+                       f"a flip volume of {z.size} x {y.size} x {x.size} cells",
+                       "use fewer points, or mp.sweep_flip_volume, which works chunk by chunk")
+    th_base = np.zeros(n) if base_theta is None else as_state(base_theta, "base_theta", n)
+    om_base = np.zeros(n) if base_omega is None else as_state(base_omega, "base_omega", n)
+    vary3 = cast("Tuple[str, int, str, int, str, int]", _check_varied(vary, n, 3))
+    theta0, omega0 = _grid_of((z, y, x), vary3[4:] + vary3[2:4] + vary3[:2], th_base, om_base)
+    uncertain, tolerance = None, None
+    if check_certify(certify, time_tolerance):
+        times, uncertain, tolerance = certified_flip_times(chain, theta0, omega0, t_max=t_max, dt=dt, link=link,
+                                                           torque=torque, time_tolerance=time_tolerance,
+                                                           progress=progress)
+    else:
+        times = flip_times(chain, theta0, omega0, t_max=t_max, dt=dt, link=link, torque=torque, progress=progress)
+    threshold = flip_threshold(chain, link, torque)
+    allowed = cast("npt.NDArray[np.bool_]", chain.energy(theta0, omega0) >= threshold)
+    return FlipVolume(x, y, z, times, allowed, float(t_max), threshold, vary3, uncertain, tolerance)
 
 
 def check_certify(certify: object, tolerance: Optional[float], name: str = "time_tolerance") -> bool:

@@ -497,6 +497,12 @@ def _add_fractal(sub, common) -> None:
                     "cluster and --zarr writes it chunk by chunk.",
     )
     _add_map_options(p, zarr_what="times, allowed, x, y")
+    p.add_argument("--z", metavar="QUANTITY",
+                   help="a third varied quantity (thetaK or omegaK): a 3-D map of --size x --size x --z-size "
+                        "initial states, drawn as up to nine slices; with --zarr written chunk by chunk "
+                        "(times, allowed, x, y, z), --chunks rows of one slice per task")
+    p.add_argument("--z-range", type=float, nargs=2, metavar=("LO", "HI"), help="z range, as --x-range")
+    p.add_argument("--z-size", type=int, default=9, metavar="K", help="values of --z (default 9)")
     p.add_argument("--t-max", type=float, metavar="SECONDS",
                    help="how long to wait for a flip (default: the scenario's t_end)")
     p.add_argument("--dt", type=float, default=FLIP_DT, metavar="SECONDS",
@@ -589,12 +595,14 @@ def _fractal_budget(args, n: int, t_max: float) -> None:
     import multipendulum as mp
 
     size = args.size
-    cells = float(size) * size
+    depth = args.z_size if getattr(args, "z", None) is not None else 1
+    cells = float(size) * size * depth
     if args.zarr is None:
         # The map's times (8 bytes) and flags (1, and 1 more certified) for every state, and one
         # block's initial states, energies and times while it is computed.
         block = max(_BLOCK_STATES, size) * (2 * n + 3) * 8.0
-        mp._core.check_memory(cells * (10.0 if args.certify else 9.0) + block, f"a flip-time map of {size} x {size} initial states",
+        grid = f"{size} x {size}" + (f" x {depth}" if depth > 1 else "")
+        mp._core.check_memory(cells * (10.0 if args.certify else 9.0) + block, f"a flip-time map of {grid} initial states",
                               "use a smaller --size, or --zarr PATH to write the map chunk by chunk "
                               "(with --dask ADDRESS to compute it on a cluster)")
     if args.dask is None and math.isfinite(t_max) and t_max > 0 and math.isfinite(args.dt) and args.dt > 0:
@@ -602,7 +610,8 @@ def _fractal_budget(args, n: int, t_max: float) -> None:
         work = cells * steps * (3 if args.certify else 1)  # certified: again at dt/2
         if work > MAX_LOCAL_MAP_STEPS:
             raise mp.InputError(
-                f"a{' certified' if args.certify else ''} flip-time map of {size} x {size} initial states with up "
+                f"a{' certified' if args.certify else ''} flip-time map of {size} x {size}"
+                f"{f' x {depth}' if depth > 1 else ''} initial states with up "
                 f"to t_max / dt = {steps:.4g} steps each is up to {work:.3g} rk4 steps, more than the {MAX_LOCAL_MAP_STEPS:.0e} one machine is "
                 "given (hours of work); use a smaller --size, a shorter --t-max or a larger --dt, or spread it "
                 "over a cluster with --dask ADDRESS")
@@ -661,14 +670,21 @@ def _map_axes(args, vary):
 
     check_picture(args.dpi, names={"dpi": "--dpi"})
 
-    def axis(kind, rng):
-        lo, hi = rng if rng is not None else ((-180.0, 180.0) if kind == "theta" else (-720.0, 720.0))
-        if not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):
-            raise mp.InputError(f"a range must have HI > LO, got {lo:g} {hi:g}")
-        step = (hi - lo) / args.size
-        return np.radians(lo + step * (np.arange(args.size) + 0.5))  # pixel centres
+    return _map_axis(vary[0], args.x_range, args.size), _map_axis(vary[2], args.y_range, args.size)
 
-    return axis(vary[0], args.x_range), axis(vary[2], args.y_range)
+
+def _map_axis(kind: str, rng, size: int):
+    """``size`` values (radians) of a varied quantity: the pixel centres across its range in
+    degrees (default -180..180, for a rate -720..720 degrees/s)."""
+    import numpy as np
+
+    import multipendulum as mp
+
+    lo, hi = rng if rng is not None else ((-180.0, 180.0) if kind == "theta" else (-720.0, 720.0))
+    if not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):
+        raise mp.InputError(f"a range must have HI > LO, got {lo:g} {hi:g}")
+    step = (hi - lo) / size
+    return np.radians(lo + step * (np.arange(size) + 0.5))  # pixel centres
 
 
 def _cmd_fractal(args) -> int:
@@ -700,6 +716,12 @@ def _cmd_fractal(args) -> int:
     else:
         mp.flip_times(chain, np.zeros((0, n)), t_max=t_max, dt=args.dt, link=link)
     title = scenario.name or args.scenario.stem
+    if getattr(args, "z", None) is not None:
+        return _fractal_volume(args, scenario, chain, vary, x, y, title, kwargs)
+    for option, given in (("--z-range", getattr(args, "z_range", None) is not None),
+                          ("--z-size", getattr(args, "z_size", 9) != 9)):
+        if given:
+            raise mp.InputError(f"{option} applies to a 3-D map: add --z QUANTITY")
     _say(args, f"{title}: flip-time map of {args.size} x {args.size} initial states, N = {n}, "
                f"t_max = {t_max:g} s, dt = {args.dt:g} s" + (" (certified: again at dt/2)" if args.certify else ""))
     if scenario.torque is not None:
@@ -729,6 +751,71 @@ def _cmd_fractal(args) -> int:
     path = plot_flip_map(fm, args.output, chain=chain, vary=vary, base_theta=scenario.theta0,
                          base_omega=scenario.omega0, title=f"{title}: time of the first flip"
                          + ("" if link is None else f" of link {link + 1}"), dpi=args.dpi, log=not args.linear)
+    _say(args, f"wrote {path}")
+    return 0
+
+
+def _fractal_volume(args, scenario, chain, vary, x, y, title: str, kwargs) -> int:
+    """`fractal --z`: the 3-D map, here slice by slice (each `mp.flip_map` with the third
+    quantity fixed: the same cells as `mp.flip_volume`, bit for bit) or on Dask into Zarr, drawn
+    as slices."""
+    import numpy as np
+
+    import multipendulum as mp
+    from .fractal import plot_flip_volume
+
+    n = chain.n
+    kz, iz = _fractal_axis(args.z, n, "--z")
+    if (kz, iz) in ((vary[0], vary[1]), (vary[2], vary[3])):
+        raise mp.InputError(f"--z must differ from --x and --y, got {args.z!r}")
+    if args.z_size < 1:
+        raise mp.InputError(f"--z-size must be at least 1, got {args.z_size}")
+    z = _map_axis(kz, args.z_range, args.z_size)
+    vary3 = (*vary, kz, iz)
+    base_theta, base_omega = np.asarray(scenario.theta0, float), np.asarray(scenario.omega0, float)
+    _say(args, f"{title}: 3-D flip-time map of {args.size} x {args.size} x {args.z_size} initial states, N = {n}, "
+               f"t_max = {kwargs['t_max']:g} s, dt = {args.dt:g} s" + (" (certified: again at dt/2)" if args.certify else ""))
+    if scenario.torque is not None:
+        _say(args, "  note: the scenario's torque is not applied; the map is of the free chain")
+    start = time.perf_counter()
+    with ProgressBar("flip volume", quiet=args.quiet) as bar:
+        if args.dask is not None or args.zarr is not None or args.chunks is not None:
+            rest = {k: v for k, v in kwargs.items() if k != "vary"}
+            chunks = None if args.chunks is None else (1, args.chunks, args.size)
+            try:
+                fv = mp.sweep_flip_volume(chain, x, y, z, vary=vary3, chunks=chunks, scheduler=args.dask,
+                                          zarr=args.zarr, progress=bar, **rest)
+            except ImportError as exc:
+                return _error(str(exc))
+        else:
+            done = Steps(bar, total=x.size * y.size * z.size)
+            parts = []
+            for value in z:
+                th, om = base_theta.copy(), base_omega.copy()
+                (th if kz == "theta" else om)[iz] = value
+                parts.append(mp.flip_map(chain, x, y, **{**kwargs, "base_theta": th, "base_omega": om}))
+                done.add(parts[-1].times.size)
+            last = parts[-1]
+            stack = lambda name: np.stack([getattr(p, name) for p in parts])  # noqa: E731
+            fv = mp.FlipVolume(x, y, z, stack("times"), stack("allowed"), last.t_max, last.threshold, vary3,
+                               None if last.uncertain is None else stack("uncertain"), last.time_tolerance)
+        bar(1.0)
+    wall = time.perf_counter() - start
+    total = args.size * args.size * args.z_size
+    counts = np.sum([_fractal_counts(fv.slice(k)) for k in range(z.size)], axis=0)
+    flipped, never, forbidden, uncertain = (int(c) for c in counts)
+    _say(args, f"  flipped {100 * flipped / total:.1f}%, no flip by t_max {100 * never / total:.1f}%, "
+               f"no flip possible (energy below E_flip = {fv.threshold:.4g} J) {100 * forbidden / total:.1f}%; "
+               f"wall time {wall:.3g} s")
+    if fv.uncertain is not None:
+        _say(args, f"  uncertain: {uncertain} of {total} cells ({100 * uncertain / total:.1f}%) change their flip "
+                   f"decision, or their time by more than {fv.time_tolerance:g} s, at dt/2 = {args.dt / 2:g} s")
+    if args.zarr is not None:
+        _say(args, f"wrote {args.zarr}")
+    link = kwargs["link"]
+    path = plot_flip_volume(fv, args.output, chain=chain, base_theta=base_theta, base_omega=base_omega,
+                            title=f"{title}: time of the first flip" + ("" if link is None else f" of link {link + 1}"),
+                            dpi=min(args.dpi, 120), log=not args.linear)
     _say(args, f"wrote {path}")
     return 0
 

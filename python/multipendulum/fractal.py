@@ -25,10 +25,10 @@ from typing import NamedTuple, Optional, Sequence, Tuple, Union
 import numpy as np
 
 from ._chain import Chain, as_state
-from .chaos import CHAOS_RULES, FlipMap, IndicatorMap
+from .chaos import CHAOS_RULES, FlipMap, FlipVolume, IndicatorMap
 from .errors import InputError
 
-__all__ = ["plot_flip_map", "plot_indicator_map", "indicator_label", "INDICATOR_STYLES", "LOG_FLOOR", "energy_grid",
+__all__ = ["plot_flip_map", "plot_flip_volume", "plot_indicator_map", "indicator_label", "INDICATOR_STYLES", "LOG_FLOOR", "energy_grid",
            "axis_label", "check_picture", "MAX_SIDE"]
 
 PathLike = Union[str, "os.PathLike[str]"]
@@ -153,13 +153,50 @@ def plot_flip_map(fm: FlipMap, path: Optional[PathLike] = None, chain: Optional[
     read by it. A certified map (``certify=True``) draws its uncertain cells in magenta, counted
     in the legend.
     """
-    import matplotlib
-    from matplotlib.colors import LogNorm, Normalize
     from matplotlib.figure import Figure
-    from matplotlib.patches import Patch
-    from matplotlib.lines import Line2D
 
     check_picture(dpi, size)
+    from .plotting import fit_title
+
+    fig = Figure(figsize=(size, size * 0.86), dpi=dpi)
+    # A long title takes two lines (never clipped); the axes make room for the second.
+    heading = fit_title(title or "Time of the first flip", 0.94 * size, 11.0, max_lines=2)
+    height = 0.72 - 0.05 * heading.count("\n")
+    ax = fig.add_axes((0.12, 0.18, 0.68, height))
+    cax = fig.add_axes((0.83, 0.18, 0.03, height))
+    drawn = _draw_flip(ax, fm, chain, vary, base_theta, base_omega, log)
+    _flip_colorbar(fig, cax, drawn, fm.t_max, log)
+    _flip_legend(fig, [drawn], fm)
+    fig.suptitle(heading, fontsize=11, y=0.975)
+    frac = lambda m: f"{100 * m.mean():.1f}%"  # noqa: E731
+    x, y = np.asarray(fm.x), np.asarray(fm.y)
+    subtitle = f"{y.size} x {x.size} initial states, {frac(drawn.flipped)} flipped by {fm.t_max:g} s" \
+        + ("" if drawn.uncertain is None else f", {frac(drawn.uncertain)} uncertain")
+    fixed = _fixed_values(chain, tuple(vary), base_theta, base_omega)
+    ax.set_title(subtitle + (f"; {fixed}" if fixed else ""), fontsize=8, color="0.3")
+    if path is None:
+        return fig
+    return _save(fig, path)
+
+
+class _Drawn(NamedTuple):
+    """What :func:`_draw_flip` drew: the image (for a colour bar) and the pixels' classes."""
+
+    image: object
+    flipped: np.ndarray
+    never: np.ndarray
+    forbidden: np.ndarray
+    uncertain: Optional[np.ndarray]
+    below: bool
+
+
+def _draw_flip(ax, fm: FlipMap, chain: Optional[Chain], vary: Sequence, base_theta, base_omega, log: bool) -> _Drawn:
+    """One flip map onto ``ax``: the times coloured by log time (or linearly), the certified
+    map's uncertain cells in magenta, the forbidden region hatched with its energy bound, the
+    axes labelled."""
+    import matplotlib
+    from matplotlib.colors import LogNorm, Normalize
+
     kx, ix, ky, iy = vary
     x = np.asarray(fm.x, dtype=float)
     y = np.asarray(fm.y, dtype=float)
@@ -175,16 +212,7 @@ def plot_flip_map(fm: FlipMap, path: Optional[PathLike] = None, chain: Optional[
     never = ~flipped & allowed
     forbidden = ~allowed
     uncertain = None if fm.uncertain is None else np.asarray(fm.uncertain[::sy, ::sx], dtype=bool)
-    from .plotting import fit_title
-
-    fig = Figure(figsize=(size, size * 0.86), dpi=dpi)
-    # A long title takes two lines (never clipped); the axes make room for the second.
-    heading = fit_title(title or "Time of the first flip", 0.94 * size, 11.0, max_lines=2)
-    height = 0.72 - 0.05 * heading.count("\n")
-    ax = fig.add_axes((0.12, 0.18, 0.68, height))
-    cax = fig.add_axes((0.83, 0.18, 0.03, height))
     extent = (*_edges(xs), *_edges(ys))
-
     vmin = t_max * 10.0 ** -LOG_DECADES
     norm = LogNorm(vmin=vmin, vmax=t_max) if log else Normalize(0.0, t_max)
     below = bool(log and np.any(times[flipped] < vmin))
@@ -195,14 +223,6 @@ def plot_flip_map(fm: FlipMap, path: Optional[PathLike] = None, chain: Optional[
         ax.imshow(np.ma.masked_array(np.ones_like(times), ~uncertain), origin="lower", extent=extent,
                   cmap=matplotlib.colors.ListedColormap([UNCERTAIN_COLOR]), interpolation="nearest", aspect="auto",
                   zorder=1.5)
-    cb = fig.colorbar(image, cax=cax, extend="min" if below else "neither")
-    cb.set_label("time of the first flip (s)")
-    if log:
-        decades = 10.0 ** np.arange(np.floor(np.log10(vmin)), np.ceil(np.log10(t_max)) + 1)
-        ticks = np.unique(np.concatenate([np.outer(decades, [1, 2, 5]).ravel(), [t_max]]))
-        ticks = ticks[(ticks >= vmin * (1 - 1e-9)) & (ticks <= t_max * (1 + 1e-9))]
-        cb.set_ticks(ticks, labels=[f"{v:g}" for v in ticks])
-        cb.ax.minorticks_off()
 
     # The forbidden region: hatched grey, from the smooth energy field when we have the chain.
     fine_x = fine_y = field = None
@@ -225,26 +245,103 @@ def plot_flip_map(fm: FlipMap, path: Optional[PathLike] = None, chain: Optional[
     elif forbidden.all():
         ax.imshow(np.ones_like(times), origin="lower", extent=extent, cmap=matplotlib.colors.ListedColormap(
             [FORBIDDEN_COLOR]), aspect="auto", zorder=2)
-
     _label_axes(ax, extent, (kx, ix, ky, iy))
-    frac = lambda m: f"{100 * m.mean():.1f}%"  # noqa: E731
+    return _Drawn(image, flipped, never, forbidden, uncertain, below)
+
+
+def _flip_colorbar(fig, cax, drawn: _Drawn, t_max: float, log: bool) -> None:
+    cb = fig.colorbar(drawn.image, cax=cax, extend="min" if drawn.below else "neither")
+    cb.set_label("time of the first flip (s)")
+    if log:
+        vmin = t_max * 10.0 ** -LOG_DECADES
+        decades = 10.0 ** np.arange(np.floor(np.log10(vmin)), np.ceil(np.log10(t_max)) + 1)
+        ticks = np.unique(np.concatenate([np.outer(decades, [1, 2, 5]).ravel(), [t_max]]))
+        ticks = ticks[(ticks >= vmin * (1 - 1e-9)) & (ticks <= t_max * (1 + 1e-9))]
+        cb.set_ticks(ticks, labels=[f"{v:g}" for v in ticks])
+        cb.ax.minorticks_off()
+
+
+def _flip_legend(fig, drawn: Sequence[_Drawn], fm) -> None:
+    """The legend of one map or of a volume's slices (the percentages over all the pixels drawn)."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    frac = lambda m: f"{100 * np.mean(np.concatenate([x.ravel() for x in m])):.1f}%"  # noqa: E731
     handles = [
-        Patch(facecolor=NEVER_COLOR, edgecolor="0.3", lw=0.6, label=f"no flip by t = {t_max:g} s ({frac(never)})"),
+        Patch(facecolor=NEVER_COLOR, edgecolor="0.3", lw=0.6,
+              label=f"no flip by t = {fm.t_max:g} s ({frac([d.never for d in drawn])})"),
         Patch(facecolor=FORBIDDEN_COLOR, edgecolor=HATCH_COLOR, hatch="////", lw=0.6,
-              label=f"no flip possible: $E < E_\\mathrm{{flip}}$ ({frac(forbidden)})"),
+              label=f"no flip possible: $E < E_\\mathrm{{flip}}$ ({frac([d.forbidden for d in drawn])})"),
         Line2D([], [], color=BOUND_COLOR, lw=1.6,
                label=f"energy bound $E = E_\\mathrm{{flip}}$ = {fm.threshold:.4g} J"),
     ]
-    if uncertain is not None:
+    if fm.uncertain is not None:
+        unsure = frac([d.uncertain for d in drawn if d.uncertain is not None])
         handles.insert(1, Patch(facecolor=UNCERTAIN_COLOR, edgecolor="0.3", lw=0.6,
-                                label=f"uncertain: changes at dt / 2 (by > {fm.time_tolerance:g} s) ({frac(uncertain)})"))
+                                label=f"uncertain: changes at dt / 2 (by > {fm.time_tolerance:g} s) ({unsure})"))
     fig.legend(handles=handles, loc="lower center", bbox_to_anchor=(0.46, 0.0), ncol=2, fontsize=8,
                frameon=False, handlelength=1.8, columnspacing=1.4)
-    fig.suptitle(heading, fontsize=11, y=0.975)
-    subtitle = f"{y.size} x {x.size} initial states, {frac(flipped)} flipped by {t_max:g} s" \
-        + ("" if uncertain is None else f", {frac(uncertain)} uncertain")
-    fixed = _fixed_values(chain, (kx, ix, ky, iy), base_theta, base_omega)
-    ax.set_title(subtitle + (f"; {fixed}" if fixed else ""), fontsize=8, color="0.3")
+
+
+def plot_flip_volume(fv: FlipVolume, path: Optional[PathLike] = None, chain: Optional[Chain] = None,
+                     base_theta=None, base_omega=None, slices: Optional[Sequence[int]] = None,
+                     title: Optional[str] = None, dpi: float = 120, log: bool = True, size: float = 10.0):
+    """Draw a 3-D flip map (:func:`multipendulum.flip_volume` or
+    :func:`multipendulum.sweeps.sweep_flip_volume`) as slices: one panel per index of ``z`` in
+    ``slices`` (default: up to nine evenly spaced), each drawn as :func:`plot_flip_map` draws a map
+    (the energy bound of that slice from ``chain``, with ``base_theta``/``base_omega`` the volume
+    was made with), one colour scale and one legend for all (its percentages over the panels
+    drawn). Writes ``path`` (PNG, atomically) and returns it, or returns the figure.
+    """
+    from matplotlib.figure import Figure
+
+    from .plotting import fit_title
+
+    if not isinstance(fv, FlipVolume):
+        raise InputError(f"fv must be a multipendulum.FlipVolume, got {type(fv).__name__}")
+    nz = int(np.asarray(fv.z).size)
+    if slices is None:
+        slices = sorted({int(round(v)) for v in np.linspace(0, nz - 1, min(9, nz))})
+    picked = []
+    for k in slices:
+        if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 0 <= k < nz:
+            raise InputError(f"slices must be indices of z (0 <= k < {nz}), got {k!r}")
+        picked.append(int(k))
+    if not picked or len(picked) > 36:
+        raise InputError(f"slices must name between 1 and 36 slices, got {len(picked)}")
+    check_picture(dpi, size)
+    cols = min(3, len(picked))
+    rows = -(-len(picked) // cols)
+    panel = size / cols
+    fig = Figure(figsize=(size, panel * rows * 0.9 + 1.6), dpi=dpi)
+    height_in = panel * rows * 0.9 + 1.6
+    heading = fit_title(title or "Time of the first flip, in slices", 0.94 * size, 11.0, max_lines=2)
+    kz, iz = fv.vary[4], fv.vary[5]
+    drawn = []
+    top, bottom = 1.0 - 0.9 / height_in, 0.9 / height_in
+    cell_h = (top - bottom) / rows
+    for p, k in enumerate(picked):
+        r, c = divmod(p, cols)
+        ax = fig.add_axes((0.08 + c * 0.84 / cols, top - (r + 1) * cell_h + 0.12 * cell_h, 0.84 / cols * 0.72,
+                           cell_h * 0.72))
+        z = float(np.asarray(fv.z)[k])
+        th = om = None
+        if chain is not None:
+            # The slice's own base state: the volume's, with the third quantity at z[k].
+            th = np.zeros(chain.n) if base_theta is None else as_state(base_theta, "base_theta", chain.n).copy()
+            om = np.zeros(chain.n) if base_omega is None else as_state(base_omega, "base_omega", chain.n).copy()
+            (th if kz == "theta" else om)[iz] = z
+        drawn.append(_draw_flip(ax, fv.slice(k), chain, fv.vary[:4], th, om, log))
+        unit, value = ("°" if kz == "theta" else "°/s"), np.degrees(z)
+        sym = "\\theta" if kz == "theta" else "\\omega"
+        ax.set_title(f"${sym}_{{{iz + 1}}}$ = {value:.4g}{unit}", fontsize=9)
+        for label in (ax.xaxis.label, ax.yaxis.label):
+            label.set_fontsize(8)
+        ax.tick_params(labelsize=7)
+    cax = fig.add_axes((0.87, bottom + 0.1 * (top - bottom), 0.015, 0.8 * (top - bottom)))
+    _flip_colorbar(fig, cax, drawn[0], fv.t_max, log)
+    _flip_legend(fig, drawn, fv)
+    fig.suptitle(heading, fontsize=11, y=1.0 - 0.25 / height_in)
     if path is None:
         return fig
     return _save(fig, path)

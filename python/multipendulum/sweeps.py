@@ -54,8 +54,8 @@ from ._convert import Integer
 from ._progress import check as _check_progress
 from ._progress import reporter
 from ._torque import TorqueLike
-from .chaos import (FlipMap, IndicatorMap, Vary, _check_vary, _grid, certified_flip_times, certified_indicator,
-                    check_certify, flip_threshold, flip_times, indicator_fn)
+from .chaos import (FlipMap, FlipVolume, IndicatorMap, Vary, Vary3, _check_varied, _check_vary, _grid, _grid_axes, _grid_of,
+                    certified_flip_times, certified_indicator, check_certify, flip_threshold, flip_times, indicator_fn)
 from .errors import InputError
 
 if TYPE_CHECKING:
@@ -71,7 +71,8 @@ Scheduler = Union[None, str, "Client"]
 #: ``progress=``: None or False (none), True (a bar on stderr) or a callable given the fraction done.
 Progress = Union[None, bool, Callable[[float], object]]
 
-__all__ = ["sweep", "sweep_flip_map", "open_flip_map", "sweep_indicator_map", "open_indicator_map", "DEFAULT_CHUNK_SIZE"]
+__all__ = ["sweep", "sweep_flip_map", "open_flip_map", "sweep_flip_volume", "open_flip_volume", "sweep_indicator_map",
+           "open_indicator_map", "DEFAULT_CHUNK_SIZE"]
 
 #: Trajectories per task when ``chunks`` is not given: large enough that the Rust kernel's own
 #: parallelism pays off inside a task, small enough to spread a 256 x 256 map over many workers.
@@ -196,7 +197,7 @@ def _check_zarr_path(zarr: Optional[PathLike]) -> Optional[str]:
     return os.fspath(zarr)
 
 
-_KINDS = ("multipendulum.sweep", "multipendulum.flip_map", "multipendulum.indicator_map")
+_KINDS = ("multipendulum.sweep", "multipendulum.flip_map", "multipendulum.flip_volume", "multipendulum.indicator_map")
 
 
 @contextlib.contextmanager
@@ -460,6 +461,134 @@ def open_flip_map(path: PathLike) -> FlipMap:
                    float(cast(float, group.attrs["t_max"])), float(cast(float, group.attrs["threshold"])),
                    cast("ZarrArray", group["uncertain"]) if tolerance is not None else None,
                    None if tolerance is None else float(cast(float, tolerance)))
+
+
+# ----------------------------------------------------------------------------------------------
+# 3-D flip maps: a third varied value, the grid chunked along all three axes
+
+
+def _volume_block(zb: npt.NDArray[np.float64], yb: npt.NDArray[np.float64], xb: npt.NDArray[np.float64],
+                  chain: Chain, vary: Tuple[str, int, str, int, str, int], th_base: npt.NDArray[np.float64],
+                  om_base: npt.NDArray[np.float64], t_max: float, dt: float, link: Optional[Integer],
+                  torque: Optional[TorqueLike], certify: bool, time_tolerance: Optional[float],
+                  threshold: float) -> npt.NDArray[np.float64]:
+    # A block's times, energy flags and (certified) uncertain flags, as floats along a last axis of 3.
+    theta0, omega0 = _grid_of((zb, yb, xb), vary[4:] + vary[2:4] + vary[:2], th_base, om_base)
+    if certify:
+        times, uncertain, _ = certified_flip_times(chain, theta0, omega0, t_max=t_max, dt=dt, link=link,
+                                                   torque=torque, time_tolerance=time_tolerance)
+    else:
+        times = flip_times(chain, theta0, omega0, t_max=t_max, dt=dt, link=link, torque=torque)
+        uncertain = np.zeros(times.shape, dtype=bool)
+    allowed = np.asarray(chain.energy(theta0, omega0) >= threshold)
+    return np.stack([times, allowed.astype(np.float64), uncertain.astype(np.float64)], axis=-1)
+
+
+def sweep_flip_volume(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, z: npt.ArrayLike, t_max: float = 10.0,
+                      dt: float = 0.01, vary: Vary3 = ("theta", 0, "theta", 1, "theta", 2),
+                      base_theta: Optional[npt.ArrayLike] = None, base_omega: Optional[npt.ArrayLike] = None,
+                      link: Optional[Integer] = None, torque: Optional[TorqueLike] = None, certify: bool = False,
+                      time_tolerance: Optional[float] = None,
+                      chunks: Union[None, Integer, Tuple[Integer, Integer, Integer]] = None,
+                      scheduler: Scheduler = None, zarr: Optional[PathLike] = None,
+                      progress: Progress = None) -> FlipVolume:
+    """:func:`multipendulum.flip_volume` on Dask, for 3-D grids too large for one process.
+
+    Same arguments and the same result, bit for bit, as ``flip_volume``; in addition ``chunks``
+    (``(kz, ky, kx)`` cells per task, or a number of z-slices; by default whole slices, about
+    :data:`DEFAULT_CHUNK_SIZE` cells per chunk), ``scheduler`` and ``zarr`` as for
+    :func:`sweep_flip_map`. Each task builds its own part of the grid.
+
+    With ``zarr``, the store gets the arrays ``times``, ``allowed`` (and, certified,
+    ``uncertain``), each written chunk by chunk by the tasks, plus ``x``, ``y``, ``z`` and the
+    attributes ``t_max``, ``dt``, ``threshold``, ``vary``, ``base_theta``, ``base_omega``,
+    ``link``, ``chain`` and ``time_tolerance``; the returned volume's arrays are then the
+    on-disk Zarr arrays, and :func:`open_flip_volume` opens the store again. Without ``zarr`` the
+    whole volume is gathered here: refused before any task starts when it would not fit in memory.
+    """
+    dask, da = _dask()
+    _check_progress(progress)
+    if not isinstance(chain, Chain):
+        raise InputError(f"chain must be a multipendulum.Chain, got {type(chain).__name__}")
+    n = chain.n
+    xs, ys, zs = _grid_axes(x=x, y=y, z=z)
+    th_base = np.zeros(n) if base_theta is None else as_state(base_theta, "base_theta", n)
+    om_base = np.zeros(n) if base_omega is None else as_state(base_omega, "base_omega", n)
+    if th_base.ndim != 1 or om_base.ndim != 1:
+        raise InputError(f"base_theta and base_omega must have shape ({n},)")
+    vary3 = cast("Tuple[str, int, str, int, str, int]", _check_varied(vary, n, 3))
+    path = _check_zarr_path(zarr)
+    threshold = flip_threshold(chain, link, torque)
+    certified = check_certify(certify, time_tolerance)
+    if certified:
+        tolerance: Optional[float] = certified_flip_times(chain, np.zeros((0, n)), t_max=t_max, dt=dt, link=link,
+                                                          torque=torque, time_tolerance=time_tolerance)[2]
+    else:
+        tolerance = None
+        flip_times(chain, np.zeros((0, n)), t_max=t_max, dt=dt, link=link, torque=torque)
+    kz: int
+    if chunks is None:
+        plane = ys.size * xs.size
+        kz, ky, kx = max(1, DEFAULT_CHUNK_SIZE // plane), max(1, DEFAULT_CHUNK_SIZE // xs.size), xs.size
+    elif isinstance(chunks, (int, np.integer)) and not isinstance(chunks, bool):
+        kz, ky, kx = _positive_int(chunks, "chunks"), ys.size, xs.size
+    else:
+        try:
+            given = tuple(chunks)  # type: ignore[arg-type]
+            if len(given) != 3:
+                raise ValueError
+        except (TypeError, ValueError):
+            raise InputError(f"chunks must be z-slices or (kz, ky, kx), got {chunks!r}") from None
+        kz, ky, kx = (_positive_int(v, f"chunks[{i}]") for i, v in enumerate(given))
+    kz, ky, kx = min(kz, zs.size), min(ky, ys.size), min(kx, xs.size)
+    count = -(-zs.size // kz) * -(-ys.size // ky) * -(-xs.size // kx)
+    _check_chunks(kz * ky, kx, n, count)
+    cells = float(xs.size) * ys.size * zs.size
+    if path is None:
+        # Gathered here: times (8 bytes) and flags (1 + 1) of every cell, and the blocks' stacked
+        # triples (24) until they are split.
+        _core.check_memory(cells * 34.0 * 2, f"gathering a flip volume of {zs.size} x {ys.size} x {xs.size} cells",
+                           "pass zarr=PATH to write it chunk by chunk instead")
+    Z, Y, X = da.from_array(zs, chunks=kz), da.from_array(ys, chunks=ky), da.from_array(xs, chunks=kx)
+    kernel = functools.partial(_volume_block, chain=chain, vary=vary3, th_base=th_base, om_base=om_base,
+                               t_max=float(t_max), dt=float(dt), link=link, torque=torque, certify=certified,
+                               time_tolerance=time_tolerance, threshold=threshold)
+    both = da.blockwise(kernel, "kijl", Z, "k", Y, "i", X, "j", new_axes={"l": 3}, dtype=np.float64,
+                        meta=np.empty((0, 0, 0, 0)))
+    arrays: List[Tuple[str, Any]] = [("times", both[..., 0]), ("allowed", both[..., 1] != 0.0)]
+    if certified:
+        arrays.append(("uncertain", both[..., 2] != 0.0))
+    if path is None:
+        with _scheduler(scheduler) as how, reporter(progress, "flip volume") as report:
+            got = _compute(dask, how, report, *(arr for _, arr in arrays))
+        return FlipVolume(xs, ys, zs, got[0], got[1], float(t_max), threshold, vary3,
+                          got[2] if certified else None, tolerance)
+    attrs = {"t_max": float(t_max), "dt": float(dt), "threshold": threshold, "vary": list(vary3),
+             "base_theta": th_base.tolist(), "base_omega": om_base.tolist(),
+             "link": None if link is None else int(link), "chain": chain.to_dict(), "time_tolerance": tolerance}
+    with _fresh_store(path, "multipendulum.flip_volume", attrs), _scheduler(scheduler) as how, \
+            reporter(progress, "flip volume") as report:
+        stores = [da.to_zarr(arr, path, component=name, compute=False) for name, arr in arrays]
+        stores += [da.to_zarr(da.from_array(v, chunks=v.size), path, component=name, compute=False)
+                   for name, v in (("x", xs), ("y", ys), ("z", zs))]
+        _compute(dask, how, report, *stores)
+    return open_flip_volume(path)
+
+
+def open_flip_volume(path: PathLike) -> FlipVolume:
+    """A 3-D flip map written by :func:`sweep_flip_volume` (or ``multipendulum fractal --z ...
+    --zarr``): ``x``, ``y``, ``z`` read into memory; ``times``, ``allowed`` (and ``uncertain``)
+    left on disk as Zarr arrays, read a slice at a time by ``FlipVolume.slice``."""
+    group = _open_store(path, "multipendulum.flip_volume", "a 3-D flip map")
+    tolerance = group.attrs.get("time_tolerance")
+    read = lambda name: np.asarray(cast("ZarrArray", group[name])[:])  # noqa: E731
+    vary = tuple(cast(list, group.attrs["vary"]))
+    return FlipVolume(read("x"), read("y"), read("z"), cast("ZarrArray", group["times"]),
+                      cast("ZarrArray", group["allowed"]), float(cast(float, group.attrs["t_max"])),
+                      float(cast(float, group.attrs["threshold"])),
+                      cast("Tuple[str, int, str, int, str, int]", vary),
+                      cast("ZarrArray", group["uncertain"]) if tolerance is not None else None,
+                      None if tolerance is None else float(cast(float, tolerance)))
 
 
 # ----------------------------------------------------------------------------------------------
