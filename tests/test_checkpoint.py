@@ -223,7 +223,10 @@ def long_run(tmp_path_factory):
 def _start(scenario, out, ckpt):
     cmd = [sys.executable, "-m", "multipendulum", "run", str(scenario), "-o", str(out), "-q",
            "--checkpoint", str(ckpt), "--checkpoint-every", "20000"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # SIGINT as a terminal delivers it, even when these tests run where it is ignored (a shell's
+    # background job), which the child would inherit.
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 60
     while not ckpt.exists():  # appears only complete (atomic rename)
         assert proc.poll() is None, proc.communicate()

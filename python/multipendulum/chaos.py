@@ -316,7 +316,7 @@ def indicator_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_end: float
                   progress: Progress = None) -> IndicatorMap:
     """A chaos-indicator map over a grid of two initial values, as :func:`flip_map` varies them
     (``vary``, ``base_theta``, ``base_omega``); each cell :func:`indicator` at ``t_end``, in
-    parallel (undriven chains without losses in SIMD lanes, eight cells at a time).
+    parallel (undriven chains in SIMD lanes, eight cells at a time, damping and friction included).
 
     ``certify=True`` computes every cell again at ``dt / 2`` (as :func:`certified_indicator`)
     and fills ``uncertain``: the cells that fall on different sides of ``threshold`` (default:
@@ -440,8 +440,8 @@ def ensemble(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: 
     O(B N steps). Results are identical whatever the number of threads. ``progress`` as for
     :func:`lyapunov`.
 
-    Undriven chains without losses or a cart, run by ``rk4``, go through SIMD lanes (eight
-    trajectories at a time, several times faster); they agree with the per-trajectory route
+    Undriven chains on a fixed pivot (damping and friction included, no cart), run by ``rk4``,
+    go through SIMD lanes (eight trajectories at a time, several times faster); they agree with the per-trajectory route
     (a batch :func:`simulate` with a non-terminal :class:`Flip` event) to round-off, and do not
     depend on the CPU's vector width. ``MULTIPENDULUM_LANES=scalar`` forces that route."""
 

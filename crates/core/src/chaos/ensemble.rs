@@ -1,4 +1,5 @@
-//! Ensembles in SIMD lanes: many undriven ideal chains (no torque, no losses, no cart) run by rk4
+//! Ensembles in SIMD lanes: many undriven chains on a fixed pivot (damping and friction included:
+//! their work rides along as one more lane, for the energy balance; no torque, no cart) run by rk4
 //! to `t_end` on the driver's grid (`t_k = k dt`, the last step shortened to land on `t_end`),
 //! eight to a group of lanes ([`Rk4Lanes`]), keeping only what `mp.ensemble` reports: the final
 //! states and momenta, the energy error at `t_end`, the number of steps, and the first time any
@@ -39,11 +40,11 @@ pub struct Ensemble {
     pub first_flip: Vec<f64>,
 }
 
-/// Whether an ensemble of `chain` run with `method` goes through the lanes: an undriven ideal
-/// chain (the caller passes no torque) on rk4's Lagrangian form, unless `MULTIPENDULUM_LANES`
+/// Whether an ensemble of `chain` run with `method` goes through the lanes: an undriven chain
+/// on a fixed pivot (the caller passes no torque; losses allowed) on rk4's Lagrangian form, unless `MULTIPENDULUM_LANES`
 /// asks for the per-trajectory route. `None`: the per-trajectory route.
 pub fn route(chain: &Chain, method: Method) -> Result<Option<Path>> {
-    if !(chain.is_ideal() && method == Method::Rk4) {
+    if !(chain.cart().is_none() && method == Method::Rk4) {
         return Ok(None);
     }
     crate::run::bank::requested()
@@ -122,8 +123,10 @@ fn run_chunk(chain: &Chain, th: &[f64], om: &[f64], t_end: f64, dt: f64, steps: 
     let n = chain.n();
     let rows = th.len() / n;
     let lanes = |k| vec![[0.0; LANES]; k];
-    let (mut y, mut y0, tau) = (lanes(2 * n), lanes(2 * n), lanes(n));
-    let mut rk = Rk4Lanes::new(n);
+    // A lossy chain carries the losses' work (-D) as one more lane, for its energy balance.
+    let m = 2 * n + usize::from(chain.lossy_joints());
+    let (mut y, mut y0, tau) = (lanes(m), lanes(m), lanes(n));
+    let mut rk = Rk4Lanes::with_dim(n, m);
     let (mut ws, mut scratch) = (Workspace::new(n), vec![0.0; n]);
     let mut out = Ensemble {
         theta: vec![0.0; rows * n],
@@ -194,7 +197,8 @@ fn run_chunk(chain: &Chain, th: &[f64], om: &[f64], t_end: f64, dt: f64, steps: 
                 omega[a] = y[n + a][j];
             }
             let kinetic = chain.kinetic_energy(theta, omega, &mut scratch, &mut ws);
-            out.energy_error[r] = balance.observe(kinetic, kinetic + chain.potential_energy(theta), 0.0);
+            let work = y.get(2 * n).map_or(0.0, |w| w[j]);
+            out.energy_error[r] = balance.observe(kinetic, kinetic + chain.potential_energy(theta), work);
             chain.momenta_into(theta, omega, &mut out.p[n * r..n * (r + 1)], &mut ws);
         }
     }
@@ -213,6 +217,8 @@ mod tests {
             Chain::new(&[1.0, 1.0], &[1.0, 1.0], None, None, 9.81).unwrap(),
             Chain::rods(&[1.0, 0.5, 0.8], &[1.0, 0.3, 2.0], 9.81).unwrap(),
             Chain::new(&[0.4; 5], &[1.0, 0.5, 2.0, 1.0, 0.1], Some(&[0.2; 5]), Some(&[0.01; 5]), 3.7).unwrap(),
+            Chain::new(&[1.0, 1.0], &[1.0, 1.0], None, None, 9.81).unwrap().with_losses(&[0.1, 0.3], &[0.2, 0.0], 0.05).unwrap(),
+            Chain::rods(&[1.0, 0.5, 0.8], &[1.0, 0.3, 2.0], 9.81).unwrap().with_losses(&[0.0, 0.2, 0.1], &[0.1, 0.1, 0.0], 1e-3).unwrap(),
         ]
     }
 

@@ -616,6 +616,12 @@ mod tests {
             Chain::new(&l, &m, None, None, 9.81).unwrap(),
             Chain::rods(&l, &m, 9.81).unwrap(),
             Chain::new(&l, &m, Some(&c), Some(&i), 3.7).unwrap(),
+            // Damping on every joint, friction on every other one (the general model's route on
+            // the scalar side).
+            Chain::rods(&l, &m, 9.81)
+                .unwrap()
+                .with_losses(&vec![0.05; n], &(0..n).map(|a| if a % 2 == 0 { 0.1 } else { 0.0 }).collect::<Vec<_>>(), 0.01)
+                .unwrap(),
         ]
     }
 
@@ -636,7 +642,7 @@ mod tests {
 
     #[test]
     fn chains_of_any_n_flip_as_on_the_scalar_path_where_the_motion_is_regular() {
-        for n in [1, 3, 5] {
+        for n in [1, 2, 3, 5] {
             for chain in chains_of(n) {
                 for link in [None, Some(0), Some(n - 1)] {
                     let (th, om) = released(n, 31);

@@ -1,5 +1,5 @@
-//! Chaos indicators of many states in SIMD lanes: undriven ideal chains (no torque, no losses, no
-//! cart), eight states to a group, each carrying its tangent vectors through rk4 on
+//! Chaos indicators of many states in SIMD lanes: undriven chains on a fixed pivot (damping and
+//! friction included; no torque, no cart), eight states to a group, each carrying its tangent vectors through rk4 on
 //! [`crate::dynamics::lanes`]' accelerations and their tangent ([`Rk4Lanes::step_system`]). The
 //! same run as [`super::indicators`]' per-state one (the grid `t_k = k dt`, MEGNO's two integrals
 //! integrated with the orbit, the vectors renormalised after every step), so a value agrees with
@@ -11,7 +11,7 @@
 //! vector) is run again state by state on the per-state route, which gives its values or the
 //! error that route reports.
 use super::indicators::{orthonormalise, run, Indicator};
-use crate::dynamics::lanes::{accelerations, tangent, LaneScratch};
+use crate::dynamics::lanes::{accelerations, add_loss_tangent, add_losses, tangent, LaneScratch};
 use crate::dynamics::torque::{Builtin, TorqueSource};
 use crate::error::Result;
 use crate::dynamics::lanes::LaneSingular;
@@ -24,10 +24,11 @@ use crate::watch::Watch;
 /// Rows per parallel task: eight groups.
 const CHUNK: usize = 8 * LANES;
 
-/// Whether a batch of indicators goes through the lanes: an undriven ideal chain, unless
+/// Whether a batch of indicators goes through the lanes: an undriven chain on a fixed pivot
+/// (damping and friction included), unless
 /// `MULTIPENDULUM_LANES` asks for the per-state route. `None`: the per-state route.
 pub fn route(chain: &Chain, torque: &Builtin) -> Result<Option<Path>> {
-    if !chain.is_ideal() || torque.active() {
+    if chain.cart().is_some() || torque.active() {
         return Ok(None);
     }
     crate::run::bank::requested()
@@ -169,6 +170,9 @@ struct TangentLanes<'a> {
     h: f64,
     tau: &'a [Lane],
     active: &'a Lane,
+    /// A lossy chain's forces and their tangent.
+    q: &'a mut [Lane],
+    dq: &'a mut [Lane],
 }
 
 impl LaneSystem for TangentLanes<'_> {
@@ -178,12 +182,25 @@ impl LaneSystem for TangentLanes<'_> {
         let d = 2 * n;
         let (head, tail) = dst.split_at_mut(d);
         head[..n].copy_from_slice(&src[n..d]);
-        accelerations(chain, &src[..n], &src[n..d], self.tau, &mut head[n..], scratch, self.active)?;
+        let lossy = chain.lossy_joints();
+        if lossy {
+            // The joints' losses as generalized forces, and their own tangent per vector.
+            self.q.copy_from_slice(self.tau);
+            add_losses(chain, &src[n..d], self.q, &mut [0.0; LANES]);
+        }
+        let forces: &[Lane] = if lossy { self.q } else { self.tau };
+        accelerations(chain, &src[..n], &src[n..d], forces, &mut head[n..], scratch, self.active)?;
         for j in 0..k {
             let v = &src[d * (j + 1)..d * (j + 2)];
             let dv = &mut tail[d * j..d * (j + 1)];
             dv[..n].copy_from_slice(&v[n..]);
-            tangent(chain, &src[n..d], &head[n..], &v[..n], &v[n..], &mut dv[n..], scratch);
+            let extra = if lossy {
+                add_loss_tangent(chain, &src[n..d], &v[n..], self.dq);
+                Some(&*self.dq)
+            } else {
+                None
+            };
+            tangent(chain, &src[n..d], &head[n..], &v[..n], &v[n..], extra, &mut dv[n..], scratch);
         }
         if self.megno {
             // y' = t (d' . d) / (d . d), w' = 2 y / t (see `Tangent::megno_rates`), at the
@@ -220,6 +237,8 @@ struct Group {
     /// OFLI's flow at the step's end.
     flow: Vec<Lane>,
     scratch: LaneScratch,
+    q: Vec<Lane>,
+    dq: Vec<Lane>,
 }
 
 impl Group {
@@ -227,7 +246,7 @@ impl Group {
         let (n, k, megno) = (chain.n(), which.vectors(), which == Indicator::Megno);
         let dim = 2 * n * (1 + k) + 2 * usize::from(megno);
         let lanes = |m| vec![[0.0; LANES]; m];
-        Group { n, k, megno, y: lanes(dim), rk: Rk4Lanes::with_dim(n, dim), tau: lanes(n), flow: lanes(n), scratch: LaneScratch::new(n) }
+        Group { n, k, megno, y: lanes(dim), rk: Rk4Lanes::with_dim(n, dim), tau: lanes(n), flow: lanes(n), scratch: LaneScratch::new(n), q: lanes(n), dq: lanes(n) }
     }
 
     #[cfg(target_arch = "x86_64")]
@@ -265,14 +284,14 @@ impl Group {
         }
         let (mut log_growth, mut fli) = ([0.0f64; LANES], [0.0f64; LANES]);
         let mut gali = vec![0.0; k * d];
-        let Group { y, rk, tau, flow, megno, scratch: flow_scratch, .. } = self;
+        let Group { y, rk, tau, flow, megno, scratch: flow_scratch, q, dq, .. } = self;
         let megno = *megno;
         for step in 1..=job.steps {
             let t = (step - 1) as f64 * job.dt;
             // Every step: a relaxed load against eight states' step (long chains take long).
             job.watch.check(t)?;
             let h = job.dt;
-            let mut sys = TangentLanes { chain, k, megno, t, h, tau, active: &active };
+            let mut sys = TangentLanes { chain, k, megno, t, h, tau, active: &active, q: &mut q[..], dq: &mut dq[..] };
             let stepped = rk.step_system(y, h, &active, &mut sys);
             match stepped {
                 Ok(nonfinite) if !nonfinite.iter().any(|&b| b) => {}
@@ -310,7 +329,14 @@ impl Group {
                 }
                 Indicator::Ofli => {
                     // The flow at the new state, and the part of the vector orthogonal to it.
-                    if accelerations(chain, &y[..n], &y[n..d], tau, flow, flow_scratch, &active).is_err() {
+                    let forces: &[Lane] = if chain.lossy_joints() {
+                        q.copy_from_slice(tau);
+                        add_losses(chain, &y[n..d], q, &mut [0.0; LANES]);
+                        q
+                    } else {
+                        tau
+                    };
+                    if accelerations(chain, &y[..n], &y[n..d], forces, flow, flow_scratch, &active).is_err() {
                         return Ok(None);
                     }
                     for i in 0..LANES {
@@ -376,6 +402,9 @@ mod tests {
             Chain::new(&[1.0, 1.0], &[1.0, 1.0], None, None, 9.81).unwrap(),
             Chain::rods(&[1.0, 0.5, 0.8], &[1.0, 0.3, 2.0], 9.81).unwrap(),
             Chain::new(&[0.4; 5], &[1.0, 0.5, 2.0, 1.0, 0.1], Some(&[0.2; 5]), Some(&[0.01; 5]), 3.7).unwrap(),
+            // Damping and friction (the general model's route on the per-state side).
+            Chain::new(&[1.0, 1.0], &[1.0, 1.0], None, None, 9.81).unwrap().with_losses(&[0.1, 0.3], &[0.2, 0.0], 0.05).unwrap(),
+            Chain::rods(&[1.0, 0.5, 0.8], &[1.0, 0.3, 2.0], 9.81).unwrap().with_losses(&[0.0, 0.2, 0.1], &[0.1, 0.1, 0.0], 1e-3).unwrap(),
         ]
     }
 

@@ -240,12 +240,12 @@ pub fn first_flips(
     watch: &Watch,
 ) -> Result<Vec<f64>> {
     let steps = check_flips(chain, theta0, omega0, t_max, dt, link)?;
-    // The kernels are the undriven ideal chain's (the double pendulum's own, any other N in
-    // lanes); losses, a cart or a torque take the general path.
-    if matches!(torque, Builtin::None) && chain.is_ideal() {
+    // The kernels are the undriven chain's on a fixed pivot (the ideal double pendulum's own,
+    // any other in lanes, damping and friction included); a cart or a torque take the general path.
+    if matches!(torque, Builtin::None) && chain.cart().is_none() {
         if let Some(path) = flipkernel::requested()? {
-            return match chain.n() {
-                2 => flipkernel::first_flips_double(chain, theta0, omega0, steps, dt, link, path, watch),
+            return match (chain.n(), chain.is_ideal()) {
+                (2, true) => flipkernel::first_flips_double(chain, theta0, omega0, steps, dt, link, path, watch),
                 _ => flipkernel::first_flips_chain(chain, theta0, omega0, steps, dt, link, path, watch),
             };
         }

@@ -6,6 +6,7 @@
 //! product-sums fused by explicit `mul_add` (one correctly rounded operation: a hardware FMA on
 //! the AVX paths, glibc's exact `fma()` on the portable one, so every path gives the same bits).
 //! A state therefore agrees with the per-state route to round-off, not bit for bit.
+use super::general::saturating_tanh;
 use super::{Singular, PIVOT_TOL};
 use crate::model::Chain;
 use crate::trig::lanes::{sin_cos, Lane, LANES};
@@ -206,7 +207,8 @@ fn recursion(
 }
 
 /// The tangent of [`accelerations`] along `(d_theta, d_omega)`: `d theta_ddot` of every lane into
-/// `out`, for torques that depend on time only. `accel` is `theta_ddot` at the same state and `s`
+/// `out`, for torques that depend on time only, plus `extra`: the generalized forces' own
+/// derivative along the direction (the joints' losses: [`add_loss_tangent`]). `accel` is `theta_ddot` at the same state and `s`
 /// the scratch of that [`accelerations`] call (its trig and, for N != 2, its elimination, which
 /// the solve reuses: the mass matrix is the same). The arithmetic of
 /// [`Chain::tangent_accelerations_into`] (`A d_theta_ddot = dr - (dA) theta_ddot`, every term a
@@ -219,11 +221,12 @@ pub fn tangent(
     accel: &[Lane],
     d_theta: &[Lane],
     d_omega: &[Lane],
+    extra: Option<&[Lane]>,
     out: &mut [Lane],
     s: &LaneScratch,
 ) {
     if chain.n() == 2 {
-        return tangent_double(chain, omega, accel, d_theta, d_omega, out, s);
+        return tangent_double(chain, omega, accel, d_theta, d_omega, extra, out, s);
     }
     let n = omega.len();
     let (l, h, g) = (&chain.lengths[..n], &chain.h[..n], chain.g);
@@ -233,6 +236,7 @@ pub fn tangent(
     for a in 0..n {
         let (sa, ca, w, dw, dth, acc) = (s.sin[a], s.cos[a], omega[a], d_omega[a], d_theta[a], accel[a]);
         let (ha, la) = (h[a], l[a]);
+        let more = extra.map_or([0.0; LANES], |e| e[a]);
         let mut r = [0.0; LANES];
         for i in 0..LANES {
             let (c, sn, dt) = (ca[i], sa[i], dth[i]);
@@ -242,7 +246,7 @@ pub fn tangent(
             let sin3 = sn * p[4][i] - c * p[5][i];
             let sin4 = sn * p[6][i] - c * p[7][i];
             let sin5 = sn * p[8][i] - c * p[9][i];
-            r[i] = -g * ha * c * dt + ha * (cos2 - dt * cos1 - 2.0 * sin3 + dt * sin4 - sin5);
+            r[i] = -g * ha * c * dt + ha * (cos2 - dt * cos1 - 2.0 * sin3 + dt * sin4 - sin5) + more[i];
             let w2 = w[i] * w[i];
             let u = [w2, dt * w2, w[i] * dw[i], acc[i], dt * acc[i]];
             for (q, uq) in u.iter().enumerate() {
@@ -295,10 +299,12 @@ fn tangent_double(
     accel: &[Lane],
     d_theta: &[Lane],
     d_omega: &[Lane],
+    extra: Option<&[Lane]>,
     out: &mut [Lane],
     s: &LaneScratch,
 ) {
     let (d1, d2, h1, h2, g) = (chain.diag[0], chain.diag[1], chain.h[0], chain.h[1], chain.g);
+    let (e1, e2) = extra.map_or(([0.0; LANES], [0.0; LANES]), |e| (e[0], e[1]));
     let k = chain.lengths[0] * h2;
     let (s1, c1, s2, c2) = (s.sin[0], s.cos[0], s.sin[1], s.cos[1]);
     let (mut a0, mut a1) = ([0.0; LANES], [0.0; LANES]);
@@ -307,8 +313,8 @@ fn tangent_double(
         let (w1, w2) = (omega[0][i], omega[1][i]);
         let delta = d_theta[0][i] - d_theta[1][i];
         let (kc, ks) = (k * c12, k * s12);
-        let r1 = -g * h1 * c1[i] * d_theta[0][i] - kc * delta * w2 * w2 - 2.0 * ks * w2 * d_omega[1][i] + ks * delta * accel[1][i];
-        let r2 = -g * h2 * c2[i] * d_theta[1][i] + kc * delta * w1 * w1 + 2.0 * ks * w1 * d_omega[0][i] + ks * delta * accel[0][i];
+        let r1 = -g * h1 * c1[i] * d_theta[0][i] - kc * delta * w2 * w2 - 2.0 * ks * w2 * d_omega[1][i] + ks * delta * accel[1][i] + e1[i];
+        let r2 = -g * h2 * c2[i] * d_theta[1][i] + kc * delta * w1 * w1 + 2.0 * ks * w1 * d_omega[0][i] + ks * delta * accel[0][i] + e2[i];
         let inv = 1.0 / (-kc).mul_add(kc, d1 * d2);
         a0[i] = d2.mul_add(r1, -(kc * r2)) * inv;
         a1[i] = d1.mul_add(r2, -(kc * r1)) * inv;
@@ -333,6 +339,64 @@ fn substitute(l: &[f64], out: &mut [Lane], s: &LaneScratch) {
         }
         out[a] = x;
     }
+}
+
+/// The joints' losses at rates `omega` added to the generalized forces `q`, and the power they
+/// dissipate (`sum_i -u_i w_i >= 0`) into `power`: [`Chain::add_losses`] in lanes (its joint
+/// torques `u_i = -b_i w_i - f_i tanh(w_i / v_s)`, `Q_i = u_i - u_{i+1}`). The friction's `tanh`
+/// is libm's per lane (the saturated range at once, as there).
+#[inline(always)]
+pub fn add_losses(chain: &Chain, omega: &[Lane], q: &mut [Lane], power: &mut Lane) {
+    let n = omega.len();
+    let j = &chain.joints;
+    let (mut next, mut p) = ([0.0; LANES], [0.0; LANES]);
+    for a in (0..n).rev() {
+        let (b, f, below) = (j.damping[a], j.friction[a], if a > 0 { omega[a - 1] } else { [0.0; LANES] });
+        let mut qa = q[a];
+        for i in 0..LANES {
+            let w = omega[a][i] - below[i];
+            let mut u = -b * w;
+            if f != 0.0 {
+                u -= f * saturating_tanh(w * j.inv_velocity);
+            }
+            qa[i] += u - next[i];
+            next[i] = u;
+            p[i] -= u * w;
+        }
+        q[a] = qa;
+    }
+    *power = p;
+}
+
+/// The derivative of [`add_losses`]' forces along `d_omega`, into `dq` (overwritten):
+/// [`Chain::add_loss_tangent`] in lanes.
+#[inline(always)]
+pub fn add_loss_tangent(chain: &Chain, omega: &[Lane], d_omega: &[Lane], dq: &mut [Lane]) {
+    let n = omega.len();
+    let j = &chain.joints;
+    let (mut prev, mut d_prev) = ([0.0; LANES], [0.0; LANES]);
+    let mut carry = [0.0; LANES];
+    for a in 0..n {
+        let (b, f, vs) = (j.damping[a], j.friction[a], j.friction_velocity);
+        let mut du = [0.0; LANES];
+        for i in 0..LANES {
+            let (w, dw) = (omega[a][i] - prev[i], d_omega[a][i] - d_prev[i]);
+            let mut slope = b;
+            if f != 0.0 {
+                let th = saturating_tanh(w / vs);
+                slope += f / vs * (1.0 - th * th);
+            }
+            du[i] = -slope * dw;
+        }
+        if a > 0 {
+            for i in 0..LANES {
+                dq[a - 1][i] = carry[i] - du[i];
+            }
+        }
+        carry = du;
+        (prev, d_prev) = (omega[a], d_omega[a]);
+    }
+    dq[n - 1] = carry;
 }
 
 /// Kinetic and total energy of every lane: `T = 1/2 sum_a d_a w_a^2 + sum_{b<a} l_b h_a w_a w_b
@@ -402,7 +466,7 @@ mod tests {
                 }
             }
             let mut tan = vec![[0.0; LANES]; n];
-            tangent(&chain, &om, &out, &dth, &dom, &mut tan, &scratch);
+            tangent(&chain, &om, &out, &dth, &dom, None, &mut tan, &scratch);
             let (mut kin, mut en) = ([0.0; LANES], [0.0; LANES]);
             energies(&chain, &th, &om, &mut kin, &mut en);
             let mut ws = Workspace::new(n);
@@ -434,6 +498,56 @@ mod tests {
                 let e = t + chain.potential_energy(&col(&th));
                 assert!((kin[i] - t).abs() <= 1e-12 * (1.0 + t.abs()), "N = {n}, lane {i}: T");
                 assert!((en[i] - e).abs() <= 1e-12 * (1.0 + e.abs()), "N = {n}, lane {i}: E");
+            }
+        }
+    }
+
+    #[test]
+    fn lossy_lanes_are_the_general_models_accelerations_and_tangents_to_round_off() {
+        use crate::dynamics::general::Load;
+        for n in [1usize, 2, 3, 6] {
+            let lengths: Vec<f64> = (0..n).map(|a| 0.5 + 0.1 * a as f64).collect();
+            let masses: Vec<f64> = (0..n).map(|a| 1.0 + 0.3 * a as f64).collect();
+            let chain = Chain::new(&lengths, &masses, None, None, 9.81).unwrap();
+            let damping: Vec<f64> = (0..n).map(|a| 0.05 * (a + 1) as f64).collect();
+            // Friction on every other joint, with rates in its linear and saturated ranges.
+            let friction: Vec<f64> = (0..n).map(|a| if a % 2 == 0 { 0.2 } else { 0.0 }).collect();
+            let chain = chain.with_losses(&damping, &friction, 0.5).unwrap();
+            let mut th = vec![[0.0; LANES]; n];
+            let mut om = vec![[0.0; LANES]; n];
+            let (mut dth, mut dom) = (vec![[0.0; LANES]; n], vec![[0.0; LANES]; n]);
+            for a in 0..n {
+                for i in 0..LANES {
+                    th[a][i] = (a as f64 * 1.3 + i as f64 * 0.7).sin() * 3.0;
+                    om[a][i] = (a as f64 * 0.4 - i as f64 * 1.1).cos() * (0.1 + i as f64);
+                    dth[a][i] = (a as f64 * 0.9 - i as f64 * 0.3).sin();
+                    dom[a][i] = (a as f64 * 2.1 + i as f64 * 0.5).cos() * 1.7;
+                }
+            }
+            let (mut q, mut power) = (vec![[0.0; LANES]; n], [0.0; LANES]);
+            add_losses(&chain, &om, &mut q, &mut power);
+            let (mut acc, mut scratch) = (vec![[0.0; LANES]; n], LaneScratch::new(n));
+            accelerations(&chain, &th, &om, &q, &mut acc, &mut scratch, &[1.0; LANES]).unwrap();
+            let mut dq = vec![[0.0; LANES]; n];
+            add_loss_tangent(&chain, &om, &dom, &mut dq);
+            let mut tan = vec![[0.0; LANES]; n];
+            tangent(&chain, &om, &acc, &dth, &dom, Some(&dq), &mut tan, &scratch);
+            let mut ws = Workspace::new(n);
+            let still = Load::still(&chain);
+            for i in 0..LANES {
+                let col = |v: &[Lane]| v.iter().map(|l| l[i]).collect::<Vec<f64>>();
+                let mut want = vec![0.0; n];
+                let rates = chain.accelerations_general(&col(&th), &col(&om), 0.0, &vec![0.0; n], &still, &mut want, &mut ws).unwrap();
+                let (mut want_tan, mut sc) = (vec![0.0; n], vec![0.0; 8 * n]);
+                chain
+                    .tangent_general(&col(&th), &col(&om), (&want, 0.0), &still, (&col(&dth), &col(&dom), 0.0), &mut want_tan, &mut sc, &mut ws)
+                    .unwrap();
+                let close = |a: f64, b: f64| (a - b).abs() <= 1e-12 * (1.0 + b.abs());
+                assert!(close(power[i], rates.losses), "N = {n}, lane {i}: power {} vs {}", power[i], rates.losses);
+                for a in 0..n {
+                    assert!(close(acc[a][i], want[a]), "N = {n}, lane {i}, link {a}: {} vs {}", acc[a][i], want[a]);
+                    assert!(close(tan[a][i], want_tan[a]), "N = {n}, lane {i}, link {a}: tangent {} vs {}", tan[a][i], want_tan[a]);
+                }
             }
         }
     }

@@ -4,7 +4,7 @@
 //! portable builds give the same bits, and a lane's bits never depend on the other lanes). Used
 //! by the steppers' bank (`run::bank`) and by the flip times of chains other than the double
 //! pendulum (`chaos::flipkernel`); both compile it inside their `#[target_feature]` wrappers.
-use crate::dynamics::lanes::{accelerations, LaneScratch, LaneSingular};
+use crate::dynamics::lanes::{accelerations, add_losses, LaneScratch, LaneSingular};
 use crate::model::Chain;
 use crate::trig::lanes::{Lane, LANES};
 
@@ -35,12 +35,40 @@ impl LaneSystem for Plain<'_> {
     }
 }
 
+/// `y = [theta, omega]` or `[theta, omega, W]` under `tau` held over the step and the joints'
+/// losses at each stage's rates (`W' = -P`, the losses' work).
+struct Lossy<'a> {
+    chain: &'a Chain,
+    tau: &'a [Lane],
+    active: &'a Lane,
+    q: &'a mut [Lane],
+}
+
+impl LaneSystem for Lossy<'_> {
+    #[inline(always)]
+    fn rates(&mut self, _stage: usize, y: &[Lane], dy: &mut [Lane], scratch: &mut LaneScratch) -> std::result::Result<(), LaneSingular> {
+        let n = self.chain.n();
+        let (head, tail) = dy.split_at_mut(n);
+        head.copy_from_slice(&y[n..2 * n]);
+        self.q.copy_from_slice(self.tau);
+        let mut power = [0.0; LANES];
+        add_losses(self.chain, &y[n..2 * n], self.q, &mut power);
+        accelerations(self.chain, &y[..n], &y[n..2 * n], self.q, &mut tail[..n], scratch, self.active)?;
+        if let Some(work) = tail.get_mut(n) {
+            *work = power.map(|p| -p);
+        }
+        Ok(())
+    }
+}
+
 /// rk4's stage buffers for eight states of an N-link chain, each a lane.
 #[derive(Debug, Clone)]
 pub struct Rk4Lanes {
     k: [Vec<Lane>; 4],
     tmp: Vec<Lane>,
     scratch: LaneScratch,
+    /// The generalized forces with the losses (a lossy chain's).
+    q: Vec<Lane>,
 }
 
 impl Rk4Lanes {
@@ -52,12 +80,14 @@ impl Rk4Lanes {
     /// tangent equations: `m = 2N (1 + k)` and more).
     pub fn with_dim(n: usize, m: usize) -> Self {
         let lanes = |k| vec![[0.0; LANES]; k];
-        Rk4Lanes { k: std::array::from_fn(|_| lanes(m)), tmp: lanes(m), scratch: LaneScratch::new(n) }
+        Rk4Lanes { k: std::array::from_fn(|_| lanes(m)), tmp: lanes(m), scratch: LaneScratch::new(n), q: lanes(n) }
     }
 
     /// One rk4 step of every active lane (`active[i] > 0`) of `y = [theta (N), omega (N)]` under
     /// generalized torques `tau` (held over the step), as `Rk4::step` (stages, then the weighted
-    /// sum); the inactive lanes stay as they were. `Err((stage, _))` if an active lane's pivot
+    /// sum); the inactive lanes stay as they were. A chain with joint losses feels them at every
+    /// stage, and `y` may then carry one more lane, the work the losses have done (`-D`, the
+    /// energy dissipated), integrated with the state. `Err((stage, _))` if an active lane's pivot
     /// failed (then no lane moves); else the active lanes whose new state is not finite (they do
     /// not move either).
     #[inline(always)]
@@ -69,6 +99,12 @@ impl Rk4Lanes {
         dt: f64,
         active: &Lane,
     ) -> std::result::Result<[bool; LANES], (usize, LaneSingular)> {
+        if chain.lossy_joints() {
+            let mut q = std::mem::take(&mut self.q);
+            let out = self.step_system(y, dt, active, &mut Lossy { chain, tau, active, q: &mut q });
+            self.q = q;
+            return out;
+        }
         self.step_system(y, dt, active, &mut Plain { chain, tau, active })
     }
 
@@ -82,7 +118,7 @@ impl Rk4Lanes {
         sys: &mut impl LaneSystem,
     ) -> std::result::Result<[bool; LANES], (usize, LaneSingular)> {
         let half = 0.5 * dt;
-        let Rk4Lanes { k, tmp, scratch } = self;
+        let Rk4Lanes { k, tmp, scratch, .. } = self;
         // Loops over whole lanes by iterators (no bounds checks), so they vectorise.
         for stage in 0..4 {
             {
