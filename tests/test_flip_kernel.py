@@ -114,8 +114,23 @@ def test_a_blow_up_raises_integration_error(monkeypatch):
 
 def test_an_unknown_route_is_refused(monkeypatch):
     monkeypatch.setenv(SWITCH, "gpu")
-    with pytest.raises(mp.InputError, match=f"{SWITCH} must be one of auto, scalar, portable, avx2, avx512, got \"gpu\""):
+    with pytest.raises(mp.InputError,
+                       match=f"{SWITCH} must be one of auto, scalar, portable, avx2, avx512, generic, got \"gpu\""):
         mp.flip_times(CHAINS["point"], [1.0, 2.0])
+
+
+def test_the_generic_lanes_time_the_double_pendulum_as_its_own_kernel(monkeypatch):
+    # MULTIPENDULUM_FLIP_KERNEL=generic: the lanes of any chain (the O(N) route's closed form for
+    # two links) instead of the double pendulum's kernel; the same times to round-off.
+    th0 = np.random.default_rng(3).uniform(-3.0, 3.0, (500, 2))
+    monkeypatch.setenv(SWITCH, "auto")
+    own = mp.flip_times(CHAINS["point"], th0, t_max=2.0)
+    monkeypatch.setenv(SWITCH, "generic")
+    generic = mp.flip_times(CHAINS["point"], th0, t_max=2.0)
+    np.testing.assert_array_equal(np.isfinite(own), np.isfinite(generic))
+    early = np.isfinite(own) & (own < 1.5)
+    assert early.sum() > 30
+    np.testing.assert_allclose(generic[early], own[early], rtol=0, atol=1e-9)
 
 
 # ---- chains of any N, in lanes

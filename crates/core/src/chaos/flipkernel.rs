@@ -38,24 +38,20 @@ use crate::watch::Watch;
 const CHUNK: usize = 512;
 
 /// The environment variable that picks the flip-map route: `auto` (default), `scalar` (the
-/// per-trajectory rk4 of `chaos::first_flips_scalar`), or a kernel path by name. For tests and
-/// benchmarks; results never depend on it beyond round-off (and not at all among kernel paths).
+/// per-trajectory rk4 of `chaos::first_flips_scalar`), a kernel path by name, or `generic` (the
+/// lanes of any chain, also for the ideal double pendulum, whose own kernel `auto` takes). For
+/// tests and benchmarks; results never depend on it beyond round-off (and not at all among
+/// kernel paths).
 pub const SWITCH: &str = "MULTIPENDULUM_FLIP_KERNEL";
 
 /// The route the environment asks for: `None` for the scalar path.
 pub fn requested() -> Result<Option<Path>> {
-    let value = std::env::var(SWITCH).unwrap_or_default();
-    match value.as_str() {
-        "" | "auto" => Ok(Some(Path::best())),
-        "scalar" => Ok(None),
-        name => match Path::ALL.into_iter().find(|p| p.name() == name) {
-            Some(p) if p.available() => Ok(Some(p)),
-            Some(p) => Err(Error::input(format!("{SWITCH} = {} is not supported by this CPU", p.name()))),
-            None => Err(Error::input(format!(
-                "{SWITCH} must be one of auto, scalar, portable, avx2, avx512, got {name:?}"
-            ))),
-        },
-    }
+    Path::requested(SWITCH, &["generic"])
+}
+
+/// Whether the environment asks for the generic lanes also where a chain has its own kernel.
+pub fn generic() -> bool {
+    std::env::var(SWITCH).is_ok_and(|v| v == "generic")
 }
 
 /// The double pendulum's constant coefficients, as `Chain::accelerations_double` uses them.

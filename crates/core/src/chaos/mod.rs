@@ -245,7 +245,7 @@ pub fn first_flips(
     if matches!(torque, Builtin::None) && chain.cart().is_none() {
         if let Some(path) = flipkernel::requested()? {
             return match (chain.n(), chain.is_ideal()) {
-                (2, true) => flipkernel::first_flips_double(chain, theta0, omega0, steps, dt, link, path, watch),
+                (2, true) if !flipkernel::generic() => flipkernel::first_flips_double(chain, theta0, omega0, steps, dt, link, path, watch),
                 _ => flipkernel::first_flips_chain(chain, theta0, omega0, steps, dt, link, path, watch),
             };
         }

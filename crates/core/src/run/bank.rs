@@ -24,20 +24,7 @@ pub const SWITCH: &str = "MULTIPENDULUM_LANES";
 
 /// The lanes' path the environment asks for; `None` for the per-copy route.
 pub fn requested() -> Result<Option<Path>> {
-    match std::env::var(SWITCH).unwrap_or_default().as_str() {
-        "" | "auto" => Ok(Some(Path::best())),
-        "scalar" => Ok(None),
-        name => match Path::ALL.into_iter().find(|p| p.name() == name) {
-            Some(p) if p.available() => Ok(Some(p)),
-            Some(p) => Err(Error::input(format!(
-                "{SWITCH} = {} is not supported by this CPU",
-                p.name()
-            ))),
-            None => Err(Error::input(format!(
-                "{SWITCH} must be one of auto, scalar, portable, avx2, avx512, got {name:?}"
-            ))),
-        },
-    }
+    Path::requested(SWITCH, &[])
 }
 
 /// Whether a chain and settings take the lanes: an ideal chain on a fixed pivot, rk4, Lagrangian.

@@ -50,6 +50,27 @@ impl Path {
     pub fn best() -> Path {
         Path::ALL.into_iter().rev().find(|p| p.available()).unwrap_or(Path::Portable)
     }
+
+    /// The route the environment variable `var` asks for (for tests and benchmarks): `auto` or
+    /// unset, the best path; `scalar`, `None` (the per-trajectory route); a path by name; or one
+    /// of the caller's `more` values, which mean the best path too.
+    pub fn requested(var: &str, more: &[&str]) -> crate::error::Result<Option<Path>> {
+        use crate::error::Error;
+        let value = std::env::var(var).unwrap_or_default();
+        match value.as_str() {
+            "" | "auto" => Ok(Some(Path::best())),
+            "scalar" => Ok(None),
+            v if more.contains(&v) => Ok(Some(Path::best())),
+            name => match Path::ALL.into_iter().find(|p| p.name() == name) {
+                Some(p) if p.available() => Ok(Some(p)),
+                Some(p) => Err(Error::input(format!("{var} = {} is not supported by this CPU", p.name()))),
+                None => {
+                    let names: Vec<&str> = ["auto", "scalar"].into_iter().chain(Path::ALL.map(Path::name)).chain(more.iter().copied()).collect();
+                    Err(Error::input(format!("{var} must be one of {}, got {name:?}", names.join(", "))))
+                }
+            },
+        }
+    }
 }
 
 // The constants are fdlibm's, digit for digit.
