@@ -160,3 +160,28 @@ def test_fractal_refuses_bad_volumes(tmp_path, capsys, args, message):
     assert main(["fractal", str(scenario), "-o", str(out), "--size", "8", "-q"] + args) == 1
     assert message in capsys.readouterr().err
     assert not out.exists()
+
+
+@pytest.mark.parametrize("bad, message", [
+    ([0.1, float("nan")], "x must be a non-empty array of finite numbers"),
+    ([0.1, float("inf")], "x must be a non-empty array of finite numbers"),
+    ([], "x must be a non-empty array of finite numbers"),
+    ("abc", "x must be an array of numbers, got str 'abc'"),
+])
+def test_every_map_refuses_a_bad_grid_by_its_name(bad, message):
+    """NaN, inf, empty or non-numeric grids: the grid named, before any work (never an internal
+    name such as theta0, nor a ValueError from NumPy)."""
+    pytest.importorskip("dask.array")
+    double = mp.Chain([1.0, 1.0], [1.0, 1.0])
+    calls = [
+        lambda: mp.flip_map(double, bad, [0.1, 0.2], t_max=1.0),
+        lambda: mp.indicator_map(double, bad, [0.1, 0.2], t_end=1.0),
+        lambda: mp.sweep_flip_map(double, bad, [0.1, 0.2], t_max=1.0),
+        lambda: mp.sweep_indicator_map(double, bad, [0.1, 0.2], t_end=1.0),
+        lambda: mp.flip_volume(TRIPLE, bad, [0.1], [0.2], t_max=1.0),
+        lambda: mp.sweep_flip_volume(TRIPLE, bad, [0.1], [0.2], t_max=1.0),
+    ]
+    for call in calls:
+        with pytest.raises(mp.InputError) as e:
+            call()
+        assert message in str(e.value)

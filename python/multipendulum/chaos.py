@@ -175,7 +175,7 @@ def flip_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_max: float = 10
     """
     check_chain(chain)
     _check_progress(progress)
-    x, y = as_floats(x, "x").ravel(), as_floats(y, "y").ravel()
+    x, y = _grid_axes(x=x, y=y)
     n = chain.n
     # The grid's initial states (2N), times, energies and flags per cell, before they are made.
     _core.check_memory(float(x.size) * y.size * (2 * n + 3) * 8.0, f"a flip map of {y.size} x {x.size} cells",
@@ -330,7 +330,7 @@ def indicator_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_end: float
     """
     check_chain(chain)
     _check_progress(progress)
-    x, y = as_floats(x, "x").ravel(), as_floats(y, "y").ravel()
+    x, y = _grid_axes(x=x, y=y)
     n = chain.n
     _core.check_memory(float(x.size) * y.size * (2 * n + 1) * 8.0, f"an indicator map of {y.size} x {x.size} cells",
                        "use fewer points in x and y")

@@ -342,11 +342,8 @@ def _map_grid(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, base_theta: Opti
     """A map sweep's grid arguments, checked: ``(x, y, base_theta, base_omega, vary, zarr path)``."""
     if not isinstance(chain, Chain):
         raise InputError(f"chain must be a multipendulum.Chain, got {type(chain).__name__}")
-    xs, ys = np.asarray(x, dtype=float).ravel(), np.asarray(y, dtype=float).ravel()
+    xs, ys = _grid_axes(x=x, y=y)
     n = chain.n
-    for name, v in (("x", xs), ("y", ys)):
-        if v.size == 0 or not np.isfinite(v).all():
-            raise InputError(f"{name} must be a non-empty array of finite numbers")
     th_base = np.zeros(n) if base_theta is None else as_state(base_theta, "base_theta", n)
     om_base = np.zeros(n) if base_omega is None else as_state(base_omega, "base_omega", n)
     if th_base.ndim != 1 or om_base.ndim != 1:
