@@ -1,6 +1,6 @@
-//! A bank of ideal chains stepped with rk4 in SIMD lanes, their joint torques held over each call:
-//! the route [`super::live::Steppers`] takes for an ideal chain (no losses, no cart, a fixed
-//! pivot) on rk4's Lagrangian form. Copies go eight to a group of lanes; the groups run in
+//! A bank of chains stepped with rk4 in SIMD lanes, their joint torques held over each call: the
+//! route [`super::live::Steppers`] takes for a chain on a fixed pivot (damping and friction
+//! included, no cart) on rk4's Lagrangian form. Copies go eight to a group of lanes; the groups run in
 //! parallel. The step is [`crate::integrators::lanes::Rk4Lanes`]'s, its product-sums fused as
 //! the flip kernel's, so a copy agrees with its per-copy [`super::live::Stepper`] to round-off (the lanes' own `sin`/`cos`, the fused operations); each
 //! copy's bits depend neither on the other copies nor on the number of threads, and are the same
@@ -27,9 +27,10 @@ pub fn requested() -> Result<Option<Path>> {
     Path::requested(SWITCH, &[])
 }
 
-/// Whether a chain and settings take the lanes: an ideal chain on a fixed pivot, rk4, Lagrangian.
+/// Whether a chain and settings take the lanes: a chain on a fixed pivot (damping and friction
+/// allowed, no cart), rk4, Lagrangian.
 pub fn fits(chain: &Chain, settings: &Settings) -> bool {
-    chain.is_ideal()
+    chain.cart().is_none()
         && settings.drive.pivot.is_none()
         && settings.drive.force.is_none()
         && settings.method == crate::integrators::Method::Rk4
@@ -72,11 +73,13 @@ impl Bank {
     pub fn new(chain: &Chain, count: usize, dt: f64, path: Path) -> Self {
         let n = chain.n();
         let lanes = |k| vec![[0.0; LANES]; k];
+        // A lossy chain's lanes carry the losses' work (-D) after the state, for the balance.
+        let m = 2 * n + usize::from(chain.lossy_joints());
         let group = Group {
-            y: lanes(2 * n),
+            y: lanes(m),
             tau: lanes(n),
             start: lanes(n),
-            rk: Rk4Lanes::new(n),
+            rk: Rk4Lanes::with_dim(n, m),
         };
         let groups = vec![group; count.div_ceil(LANES)];
         let mut bank = Bank {
@@ -116,9 +119,12 @@ impl Bank {
             g.y[a][lane] = theta0[a];
             g.y[n + a][lane] = omega0[a];
         }
+        if let Some(w) = g.y.get_mut(2 * n) {
+            w[lane] = 0.0;
+        }
         // The energies as the reports compute them (in lanes), so a copy's balance starts at 0.
         let (mut kinetic, mut energy) = ([0.0; LANES], [0.0; LANES]);
-        energies(&self.chain, &g.y[..n], &g.y[n..], &mut kinetic, &mut energy);
+        energies(&self.chain, &g.y[..n], &g.y[n..2 * n], &mut kinetic, &mut energy);
         let (kinetic, energy) = (kinetic[lane], energy[lane]);
         self.copies[i] = Copy {
             steps: 0,
@@ -214,7 +220,7 @@ fn report(
 ) {
     let n = chain.n();
     let (mut kinetic, mut energy) = ([0.0; LANES], [0.0; LANES]);
-    energies(chain, &g.y[..n], &g.y[n..], &mut kinetic, &mut energy);
+    energies(chain, &g.y[..n], &g.y[n..2 * n], &mut kinetic, &mut energy);
     for (j, c) in copies.iter_mut().enumerate() {
         let row = &mut states[2 * n * j..2 * n * (j + 1)];
         for (m, v) in row.iter_mut().enumerate() {
@@ -223,7 +229,9 @@ fn report(
         let b = &mut balance[3 * j..3 * j + 3];
         b[0] = c.steps as f64 * dt;
         b[1] = energy[j];
-        b[2] = c.balance.observe(kinetic[j], energy[j], c.work);
+        // The torques' work and, for a lossy chain, the losses' (its lane).
+        let losses = g.y.get(2 * n).map_or(0.0, |w| w[j]);
+        b[2] = c.balance.observe(kinetic[j], energy[j], c.work + losses);
     }
 }
 

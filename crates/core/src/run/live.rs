@@ -245,6 +245,12 @@ impl Steppers {
         // integrator's stages (a generous kilobyte plus some hundreds of bytes per link).
         crate::memory::check(count as f64 * (1024.0 + 512.0 * chain.n() as f64), &format!("{count} copies of the chain"), "use fewer copies")?;
         let lanes = if bank::fits(chain, settings) { bank::requested()? } else { None };
+        Self::with_route(chain, count, settings, lanes)
+    }
+
+    /// [`Steppers::new`] on the lanes' `path`, or a stepper per copy (`None`): for the tests,
+    /// which hold the two routes to each other.
+    pub(crate) fn with_route(chain: &Chain, count: usize, settings: &Settings, lanes: Option<crate::trig::lanes::Path>) -> Result<Self> {
         let mut settings = settings.clone();
         if chain.cart().is_some() {
             settings.drive.force = Some(Force::Builtin(Builtin::Constant(vec![0.0])));
@@ -569,6 +575,40 @@ mod tests {
         batch.reset(1, &[0.5, 0.2], &[0.0, 0.0], [0.0; 2]).unwrap();
         batch.step(&[0.0; 6], &[], 0.2, &[], &mut out, &mut bal).unwrap();
         assert_eq!(bal[3], 0.2);
+    }
+
+    #[test]
+    fn a_lossy_chains_copies_in_lanes_agree_with_a_stepper_each() {
+        use crate::trig::lanes::Path;
+        let chain = Chain::new(&[1.0, 0.5, 0.8], &[1.0, 2.0, 0.5], None, None, 9.81)
+            .unwrap()
+            .with_losses(&[0.1, 0.2, 0.05], &[0.1, 0.0, 0.2], 0.5)
+            .unwrap();
+        let s = settings("rk4", Some(0.005));
+        let mut lanes = Steppers::with_route(&chain, 9, &s, Some(Path::best())).unwrap();
+        let mut each = Steppers::with_route(&chain, 9, &s, None).unwrap();
+        assert!(lanes.route().starts_with("lanes:") && each.route() == "each");
+        for i in 0..9 {
+            let (th, om) = ([2.0, 2.5 - 0.1 * i as f64, -1.0], [0.0, 1.0 + 0.2 * i as f64, 0.0]);
+            lanes.reset(i, &th, &om, [0.0; 2]).unwrap();
+            each.reset(i, &th, &om, [0.0; 2]).unwrap();
+        }
+        let (mut a, mut ab, mut b, mut bb) = (vec![0.0; 54], vec![0.0; 27], vec![0.0; 54], vec![0.0; 27]);
+        for k in 0..30 {
+            let u: Vec<f64> = (0..27).map(|m| 0.3 * ((m + k) as f64).sin()).collect();
+            lanes.step(&u, &[], 0.05, &[], &mut a, &mut ab).unwrap();
+            each.step(&u, &[], 0.05, &[], &mut b, &mut bb).unwrap();
+        }
+        for (x, y) in a.iter().zip(&b) {
+            assert!((x - y).abs() <= 1e-10 * (1.0 + y.abs()), "{x} vs {y}");
+        }
+        for c in 0..9 {
+            // Time, energy and the energy balance (torque work and dissipation in it): the
+            // residual is rk4's, far below the energy the losses took.
+            assert_eq!(ab[3 * c], bb[3 * c]);
+            assert!((ab[3 * c + 1] - bb[3 * c + 1]).abs() < 1e-10, "copy {c}");
+            assert!((ab[3 * c + 2] - bb[3 * c + 2]).abs() < 1e-12 && ab[3 * c + 2] < 1e-5, "copy {c}: {} vs {}", ab[3 * c + 2], bb[3 * c + 2]);
+        }
     }
 
     #[test]
