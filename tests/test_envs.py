@@ -237,14 +237,19 @@ def test_the_vector_env_is_the_same_on_any_number_of_threads():
     assert len(outs) == 1
 
 
-@pytest.mark.parametrize("losses", ["", ", damping=0.1, friction=[0.05, 0.0, 0.1], friction_velocity=0.5"],
-                         ids=["ideal", "damping and friction"])
-def test_the_lanes_and_the_per_copy_route_agree_to_round_off(losses):
-    """A chain's copies on a fixed pivot step in SIMD lanes (every path the same bits), damping
-    and friction included; forced through a stepper per copy (MULTIPENDULUM_LANES=scalar) they
-    agree to round-off, and so does the energy balance info reports."""
+@pytest.mark.parametrize("env", [
+    "'multipendulum/Acrobot-v0', n=3",
+    "'multipendulum/Acrobot-v0', n=3, damping=0.1, friction=[0.05, 0.0, 0.1], friction_velocity=0.5",
+    "'multipendulum/CartPole-v0', n=2",
+    "'multipendulum/CartPole-v0', n=1, cart_damping=0.2, damping=0.05",
+], ids=["acrobot", "acrobot with damping and friction", "cart-pole of two", "cart-pole with damping"])
+def test_the_lanes_and_the_per_copy_route_agree_to_round_off(env):
+    """A chain's copies step in SIMD lanes (every path the same bits), on a fixed pivot or a
+    cart, damping and friction included; forced through a stepper per copy
+    (MULTIPENDULUM_LANES=scalar) they agree to round-off, and so does the energy balance info
+    reports."""
     code = ("import numpy as np, gymnasium as gym, multipendulum.envs\n"
-            f"v = gym.make_vec('multipendulum/Acrobot-v0', num_envs=20, n=3, max_episode_steps=None{losses})\n"
+            f"v = gym.make_vec({env}, num_envs=20, max_episode_steps=None)\n"
             "v.reset(seed=0); rng = np.random.default_rng(0)\n"
             "for _ in range(10): o, _, _, _, info = v.step(rng.uniform(-1, 1, (20, 1)))\n"
             "o = np.concatenate([o.ravel(), info['energy_error']])\n"

@@ -54,9 +54,38 @@ pub fn accelerations(
     active: &Lane,
 ) -> Result<(), LaneSingular> {
     if chain.n() == 2 {
-        return double(chain, theta, omega, tau, out, s, active);
+        return double(chain, theta, omega, tau, out, s, active, None);
     }
-    recursion(chain, theta, omega, tau, out, s, active)
+    recursion(chain, theta, omega, tau, out, s, active, None)
+}
+
+/// The cart's input and output in lanes: the horizontal force on it (the applied force less its
+/// damping's), and `x_ddot` written.
+pub struct CartLanes<'a> {
+    pub force: &'a Lane,
+    pub x_ddot: &'a mut Lane,
+}
+
+/// [`accelerations`] of a chain on a cart (the base sliding along x, the cart first among the
+/// coordinates): `theta_ddot` into `out` and the cart's acceleration into `cart.x_ddot`, as
+/// [`Chain::accelerations_general`] with a cart: the elimination's articulated inertia at the
+/// base closes the cart's row, the substitution starts from its acceleration.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub fn accelerations_cart(
+    chain: &Chain,
+    theta: &[Lane],
+    omega: &[Lane],
+    tau: &[Lane],
+    out: &mut [Lane],
+    s: &mut LaneScratch,
+    active: &Lane,
+    cart: CartLanes,
+) -> Result<(), LaneSingular> {
+    if chain.n() == 2 {
+        return double(chain, theta, omega, tau, out, s, active, Some(cart));
+    }
+    recursion(chain, theta, omega, tau, out, s, active, Some(cart))
 }
 
 /// Fold the lanes that failed a test (active ones only) into `bad`; whether any did.
@@ -81,6 +110,7 @@ fn double(
     out: &mut [Lane],
     s: &mut LaneScratch,
     active: &Lane,
+    cart: Option<CartLanes>,
 ) -> Result<(), LaneSingular> {
     let (d1, d2, h1, h2, g) = (
         chain.diag[0],
@@ -96,7 +126,8 @@ fn double(
     // Kept for the tangent ([`tangent`]) at the same angles.
     (s.sin[0], s.cos[0], s.sin[1], s.cos[1]) = (s1, c1, s2, c2);
     let mut ok = [true; LANES];
-    let (mut a0, mut a1) = ([0.0; LANES], [0.0; LANES]);
+    let (mut a0, mut a1, mut xdd) = ([0.0; LANES], [0.0; LANES], [0.0; LANES]);
+    let total = chain.cart.map_or(0.0, |c| c.mass) + chain.total_mass();
     let (gh1, gh2, d1d2) = (g * h1, g * h2, d1 * d2);
     for i in 0..LANES {
         let (s12, c12) = (s1[i].mul_add(c2[i], -(c1[i] * s2[i])), c1[i].mul_add(c2[i], s1[i] * s2[i]));
@@ -108,8 +139,25 @@ fn double(
         let inv = 1.0 / det;
         a0[i] = d2.mul_add(r1, -(kc * r2)) * inv;
         a1[i] = d1.mul_add(r2, -(kc * r1)) * inv;
+        if let Some(c) = &cart {
+            // theta_ddot = A^-1 (r - b x_ddot), b = h cos(theta); the cart's row closes it
+            // (its Schur complement), as `accelerations_general_double`.
+            let (b1, b2) = (h1 * c1[i], h2 * c2[i]);
+            let (z1, z2) = (d2.mul_add(b1, -(kc * b2)) * inv, d1.mul_add(b2, -(kc * b1)) * inv);
+            let schur = total - (b1 * z1 + b2 * z2);
+            ok[i] &= schur > PIVOT_TOL * total;
+            let (w1, w2) = (omega[0][i], omega[1][i]);
+            let rx = c.force[i] + h1 * s1[i] * w1 * w1 + h2 * s2[i] * w2 * w2;
+            let x = (rx - (b1 * a0[i] + b2 * a1[i])) / schur;
+            a0[i] -= z1 * x;
+            a1[i] -= z2 * x;
+            xdd[i] = x;
+        }
     }
     (out[0], out[1]) = (a0, a1);
+    if let Some(c) = cart {
+        *c.x_ddot = xdd;
+    }
     let mut bad = [false; LANES];
     if failed(&ok, active, &mut bad) {
         return Err(LaneSingular {
@@ -130,6 +178,7 @@ fn recursion(
     out: &mut [Lane],
     s: &mut LaneScratch,
     active: &Lane,
+    cart: Option<CartLanes>,
 ) -> Result<(), LaneSingular> {
     let n = theta.len();
     let (l, h, d, g) = (
@@ -198,7 +247,26 @@ fn recursion(
         }
         (s.ux[a], s.uy[a], s.dinv[a], out[a]) = (uxs, uys, invs, rhos);
     }
-    substitute(l, out, s);
+    let mut base = [0.0; LANES];
+    if let Some(c) = cart {
+        // The cart's row: (F + sum_b h_b sin(theta_b) w_b^2 - w_x) / (M_c + M - G_xx), the
+        // articulated inertia and bias at the base closing it (`accelerations_general`).
+        let total = chain.cart.map_or(0.0, |c| c.mass) + chain.total_mass();
+        let mut pull = [0.0; LANES];
+        for a in 0..n {
+            for i in 0..LANES {
+                pull[i] += h[a] * s.sin[a][i] * omega[a][i] * omega[a][i];
+            }
+        }
+        for i in 0..LANES {
+            let den = total - gxx[i];
+            let fail = (active[i] > 0.0) & !(den > PIVOT_TOL * total);
+            worst[i] = if fail { worst[i].max(0.0) } else { worst[i] };
+            base[i] = (c.force[i] + pull[i] - wx[i]) / den;
+        }
+        *c.x_ddot = base;
+    }
+    substitute(l, out, s, &base);
     let first = worst.iter().copied().fold(-1.0, f64::max);
     if first < 0.0 {
         return Ok(());
@@ -286,7 +354,7 @@ pub fn tangent(
         }
         out[a] = rho;
     }
-    substitute(l, out, s);
+    substitute(l, out, s, &[0.0; LANES]);
 }
 
 /// [`tangent`] of the double pendulum: with `delta = d_theta_1 - d_theta_2`,
@@ -323,11 +391,12 @@ fn tangent_double(
 }
 
 /// Forward substitution after the elimination (`out` holds the reduced right-hand side `rho`):
-/// `x_a = (rho_a - u_a . P_a) / pivot_a`, `P` the prefix sum of `l_b n_b x_b`.
+/// `x_a = (rho_a - u_a . P_a) / pivot_a`, `P` the prefix sum of `l_b n_b x_b` from the base's
+/// acceleration `(base, 0)` (a cart's; zero on a fixed pivot).
 #[inline(always)]
-fn substitute(l: &[f64], out: &mut [Lane], s: &LaneScratch) {
+fn substitute(l: &[f64], out: &mut [Lane], s: &LaneScratch, base: &Lane) {
     let n = out.len();
-    let (mut px, mut py) = ([0.0; LANES], [0.0; LANES]);
+    let (mut px, mut py) = (*base, [0.0; LANES]);
     for a in 0..n {
         let (la, rho, ux, uy, inv, cos, sin) = (l[a], out[a], s.ux[a], s.uy[a], s.dinv[a], s.cos[a], s.sin[a]);
         let mut x = [0.0; LANES];
@@ -405,9 +474,17 @@ pub fn add_loss_tangent(chain: &Chain, omega: &[Lane], d_omega: &[Lane], dq: &mu
 /// [`Chain::potential_energy`] define them.
 #[inline(always)]
 pub fn energies(chain: &Chain, theta: &[Lane], omega: &[Lane], kinetic: &mut Lane, energy: &mut Lane) {
+    energies_on(chain, theta, omega, None, kinetic, energy)
+}
+
+/// [`energies`] with the base moving along x at `cart_v` (a cart's): the lab-frame kinetic
+/// energy `T + v r_x + (M + M_c) v^2 / 2`, `r_x = sum_a h_a cos(theta_a) w_a`, as
+/// [`Chain::kinetic_energy_moving`] has it.
+#[inline(always)]
+pub fn energies_on(chain: &Chain, theta: &[Lane], omega: &[Lane], cart_v: Option<&Lane>, kinetic: &mut Lane, energy: &mut Lane) {
     let n = theta.len();
     let (l, h, d, g) = (&chain.lengths[..n], &chain.h[..n], &chain.diag[..n], chain.g);
-    let (mut cu, mut su, mut t2, mut u) = ([0.0; LANES], [0.0; LANES], [0.0; LANES], [0.0; LANES]);
+    let (mut cu, mut su, mut t2, mut u, mut rx) = ([0.0; LANES], [0.0; LANES], [0.0; LANES], [0.0; LANES], [0.0; LANES]);
     for a in 0..n {
         let (s, c) = sin_cos(&theta[a]);
         for i in 0..LANES {
@@ -416,10 +493,15 @@ pub fn energies(chain: &Chain, theta: &[Lane], omega: &[Lane], kinetic: &mut Lan
             cu[i] += l[a] * w * c[i];
             su[i] += l[a] * w * s[i];
             u[i] -= g * h[a] * c[i];
+            rx[i] += h[a] * w * c[i];
         }
     }
+    let mass = chain.total_mass() + chain.cart.map_or(0.0, |c| c.mass);
     for i in 0..LANES {
         kinetic[i] = 0.5 * t2[i];
+        if let Some(v) = cart_v {
+            kinetic[i] += v[i] * rx[i] + 0.5 * mass * (v[i] * v[i]);
+        }
         energy[i] = kinetic[i] + u[i];
     }
 }
@@ -548,6 +630,56 @@ mod tests {
                     assert!(close(acc[a][i], want[a]), "N = {n}, lane {i}, link {a}: {} vs {}", acc[a][i], want[a]);
                     assert!(close(tan[a][i], want_tan[a]), "N = {n}, lane {i}, link {a}: tangent {} vs {}", tan[a][i], want_tan[a]);
                 }
+            }
+        }
+    }
+
+    #[test]
+    fn a_cart_in_lanes_is_the_general_models_cart_to_round_off() {
+        use crate::dynamics::general::Load;
+        use crate::model::Cart;
+        for n in [1usize, 2, 3, 5] {
+            let lengths: Vec<f64> = (0..n).map(|a| 0.5 + 0.1 * a as f64).collect();
+            let masses: Vec<f64> = (0..n).map(|a| 0.3 + 0.2 * a as f64).collect();
+            let chain = Chain::rods(&lengths, &masses, 9.81)
+                .unwrap()
+                .with_losses(&vec![0.05; n], &vec![0.0; n], 1e-3)
+                .unwrap()
+                .with_cart(Some(Cart::new(1.5, 0.2).unwrap()))
+                .unwrap();
+            let mut th = vec![[0.0; LANES]; n];
+            let mut om = vec![[0.0; LANES]; n];
+            let (mut v, mut f) = ([0.0; LANES], [0.0; LANES]);
+            for i in 0..LANES {
+                for a in 0..n {
+                    th[a][i] = (a as f64 * 1.3 + i as f64 * 0.7).sin() * 3.0;
+                    om[a][i] = (a as f64 * 0.4 - i as f64 * 1.1).cos() * 2.0;
+                }
+                v[i] = 0.3 * i as f64 - 1.0;
+                f[i] = 2.0 - 0.5 * i as f64;
+            }
+            let (mut q, mut power) = (vec![[0.0; LANES]; n], [0.0; LANES]);
+            add_losses(&chain, &om, &mut q, &mut power);
+            let force: Lane = std::array::from_fn(|i| f[i] - 0.2 * v[i]);
+            let (mut acc, mut xdd, mut scratch) = (vec![[0.0; LANES]; n], [0.0; LANES], LaneScratch::new(n));
+            accelerations_cart(&chain, &th, &om, &q, &mut acc, &mut scratch, &[1.0; LANES], CartLanes { force: &force, x_ddot: &mut xdd }).unwrap();
+            let (mut kin, mut en) = ([0.0; LANES], [0.0; LANES]);
+            energies_on(&chain, &th, &om, Some(&v), &mut kin, &mut en);
+            let mut ws = Workspace::new(n);
+            for i in 0..LANES {
+                let col = |x: &[Lane]| x.iter().map(|l| l[i]).collect::<Vec<f64>>();
+                let mut load = Load::still(&chain);
+                load.cart_force = f[i];
+                let mut want = vec![0.0; n];
+                let rates = chain.accelerations_general(&col(&th), &col(&om), v[i], &vec![0.0; n], &load, &mut want, &mut ws).unwrap();
+                let close = |a: f64, b: f64| (a - b).abs() <= 1e-12 * (1.0 + b.abs());
+                assert!(close(xdd[i], rates.cart), "N = {n}, lane {i}: x_ddot {} vs {}", xdd[i], rates.cart);
+                for a in 0..n {
+                    assert!(close(acc[a][i], want[a]), "N = {n}, lane {i}, link {a}: {} vs {}", acc[a][i], want[a]);
+                }
+                let t = chain.kinetic_energy_moving(&col(&th), &col(&om), [v[i], 0.0], &mut vec![0.0; n], &mut ws);
+                assert!(close(kin[i], t), "N = {n}, lane {i}: T {} vs {t}", kin[i]);
+                assert!(close(en[i], t + chain.potential_energy(&col(&th))), "N = {n}, lane {i}: E");
             }
         }
     }

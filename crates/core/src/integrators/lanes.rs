@@ -4,7 +4,7 @@
 //! portable builds give the same bits, and a lane's bits never depend on the other lanes). Used
 //! by the steppers' bank (`run::bank`) and by the flip times of chains other than the double
 //! pendulum (`chaos::flipkernel`); both compile it inside their `#[target_feature]` wrappers.
-use crate::dynamics::lanes::{accelerations, add_losses, LaneScratch, LaneSingular};
+use crate::dynamics::lanes::{accelerations, accelerations_cart, add_losses, CartLanes, LaneScratch, LaneSingular};
 use crate::model::Chain;
 use crate::trig::lanes::{Lane, LANES};
 
@@ -61,6 +61,47 @@ impl LaneSystem for Lossy<'_> {
     }
 }
 
+/// `y = [theta, omega, x, v, W]` of a chain on a cart under `tau` and the cart force held over
+/// the step, the joints' losses and the cart's damping at each stage's rates (`W' = -P`).
+struct OnCart<'a> {
+    chain: &'a Chain,
+    tau: &'a [Lane],
+    force: &'a Lane,
+    active: &'a Lane,
+    q: &'a mut [Lane],
+}
+
+impl LaneSystem for OnCart<'_> {
+    #[inline(always)]
+    fn rates(&mut self, _stage: usize, y: &[Lane], dy: &mut [Lane], scratch: &mut LaneScratch) -> std::result::Result<(), LaneSingular> {
+        let chain = self.chain;
+        let n = chain.n();
+        let damping = chain.cart().map_or(0.0, |c| c.damping);
+        let (head, tail) = dy.split_at_mut(n);
+        head.copy_from_slice(&y[n..2 * n]);
+        self.q.copy_from_slice(self.tau);
+        let mut power = [0.0; LANES];
+        if chain.lossy_joints() {
+            add_losses(chain, &y[n..2 * n], self.q, &mut power);
+        }
+        let v = y[2 * n + 1];
+        let mut force = [0.0; LANES];
+        for i in 0..LANES {
+            force[i] = self.force[i] - damping * v[i];
+            power[i] += damping * v[i] * v[i];
+        }
+        let (acc, rest) = tail.split_at_mut(n);
+        let mut x_ddot = [0.0; LANES];
+        accelerations_cart(chain, &y[..n], &y[n..2 * n], self.q, acc, scratch, self.active, CartLanes { force: &force, x_ddot: &mut x_ddot })?;
+        rest[0] = v;
+        rest[1] = x_ddot;
+        if let Some(work) = rest.get_mut(2) {
+            *work = power.map(|p| -p);
+        }
+        Ok(())
+    }
+}
+
 /// rk4's stage buffers for eight states of an N-link chain, each a lane.
 #[derive(Debug, Clone)]
 pub struct Rk4Lanes {
@@ -106,6 +147,25 @@ impl Rk4Lanes {
             return out;
         }
         self.step_system(y, dt, active, &mut Plain { chain, tau, active })
+    }
+
+    /// [`Rk4Lanes::step`] of a chain on a cart: `y = [theta (N), omega (N), x, v, W]` under
+    /// joint torques `tau` and the cart force `force` (both held over the step); `W` the work of
+    /// the joints' losses and the cart's damping (`-D`).
+    #[inline(always)]
+    pub fn step_cart(
+        &mut self,
+        chain: &Chain,
+        y: &mut [Lane],
+        tau: &[Lane],
+        force: &Lane,
+        dt: f64,
+        active: &Lane,
+    ) -> std::result::Result<[bool; LANES], (usize, LaneSingular)> {
+        let mut q = std::mem::take(&mut self.q);
+        let out = self.step_system(y, dt, active, &mut OnCart { chain, tau, force, active, q: &mut q });
+        self.q = q;
+        out
     }
 
     /// [`Rk4Lanes::step`] of any system built on the chain (see [`LaneSystem`]).

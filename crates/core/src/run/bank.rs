@@ -1,6 +1,6 @@
-//! A bank of chains stepped with rk4 in SIMD lanes, their joint torques held over each call: the
-//! route [`super::live::Steppers`] takes for a chain on a fixed pivot (damping and friction
-//! included, no cart) on rk4's Lagrangian form. Copies go eight to a group of lanes; the groups run in
+//! A bank of chains stepped with rk4 in SIMD lanes, their joint torques (and a cart's force) held
+//! over each call: the route [`super::live::Steppers`] takes for a chain on a fixed pivot or on a
+//! cart (damping and friction included) on rk4's Lagrangian form. Copies go eight to a group of lanes; the groups run in
 //! parallel. The step is [`crate::integrators::lanes::Rk4Lanes`]'s, its product-sums fused as
 //! the flip kernel's, so a copy agrees with its per-copy [`super::live::Stepper`] to round-off (the lanes' own `sin`/`cos`, the fused operations); each
 //! copy's bits depend neither on the other copies nor on the number of threads, and are the same
@@ -10,7 +10,7 @@
 //! constant, and what rk4 gives the work integral `int tau . omega dt` in exact arithmetic.
 use super::energy::EnergyBalance;
 use super::simulate::Settings;
-use crate::dynamics::lanes::energies;
+use crate::dynamics::lanes::energies_on;
 use crate::dynamics::system::NON_FINITE;
 use crate::error::{Error, Result};
 use crate::integrators::lanes::Rk4Lanes;
@@ -18,7 +18,7 @@ use crate::model::Chain;
 use crate::par::*;
 use crate::trig::lanes::{Lane, Path, LANES};
 
-/// The environment variable that picks the route of an ideal chain's steppers: `auto` (the lanes
+/// The environment variable that picks the route of the steppers: `auto` (the lanes
 /// on the best path), `scalar` (one [`super::live::Stepper`] per copy), or a lane path by name.
 pub const SWITCH: &str = "MULTIPENDULUM_LANES";
 
@@ -27,11 +27,10 @@ pub fn requested() -> Result<Option<Path>> {
     Path::requested(SWITCH, &[])
 }
 
-/// Whether a chain and settings take the lanes: a chain on a fixed pivot (damping and friction
-/// allowed, no cart), rk4, Lagrangian.
-pub fn fits(chain: &Chain, settings: &Settings) -> bool {
-    chain.cart().is_none()
-        && settings.drive.pivot.is_none()
+/// Whether a chain and settings take the lanes: a chain on a fixed pivot or on a cart (damping
+/// and friction allowed; the cart's force held by the steppers), rk4, Lagrangian.
+pub fn fits(_chain: &Chain, settings: &Settings) -> bool {
+    settings.drive.pivot.is_none()
         && settings.drive.force.is_none()
         && settings.method == crate::integrators::Method::Rk4
         && matches!(
@@ -43,11 +42,23 @@ pub fn fits(chain: &Chain, settings: &Settings) -> bool {
 /// Eight copies' lanes and the rk4 buffers.
 #[derive(Debug, Clone)]
 struct Group {
-    /// `[theta (N), omega (N)]`, each a lane.
+    /// `[theta (N), omega (N)]`, then a cart's `x, v`, then (with a cart or joint losses) the
+    /// work of the losses `W = -D`; each a lane.
     y: Vec<Lane>,
     tau: Vec<Lane>,
+    /// The cart's force, held.
+    force: Lane,
+    /// The angles (and the cart's position) at the start of a call, for the inputs' work.
     start: Vec<Lane>,
     rk: Rk4Lanes,
+}
+
+/// Where a group's lanes keep what: the state row's length (`theta, omega`, a cart's `x, v`),
+/// and the losses' work lane if any.
+fn layout(chain: &Chain) -> (usize, Option<usize>) {
+    let n = chain.n();
+    let row = 2 * n + 2 * usize::from(chain.cart().is_some());
+    (row, (chain.cart().is_some() || chain.lossy_joints()).then_some(row))
 }
 
 /// What a copy keeps besides its lane.
@@ -73,12 +84,13 @@ impl Bank {
     pub fn new(chain: &Chain, count: usize, dt: f64, path: Path) -> Self {
         let n = chain.n();
         let lanes = |k| vec![[0.0; LANES]; k];
-        // A lossy chain's lanes carry the losses' work (-D) after the state, for the balance.
-        let m = 2 * n + usize::from(chain.lossy_joints());
+        let (row, work) = layout(chain);
+        let m = row + usize::from(work.is_some());
         let group = Group {
             y: lanes(m),
             tau: lanes(n),
-            start: lanes(n),
+            force: [0.0; LANES],
+            start: lanes(n + 1),
             rk: Rk4Lanes::with_dim(n, m),
         };
         let groups = vec![group; count.div_ceil(LANES)];
@@ -98,7 +110,7 @@ impl Bank {
                 balance: EnergyBalance::from_energy(chain, 0.0, 0.0),
                 failed: None,
             });
-            bank.reset(i, &rest, &rest);
+            bank.reset(i, &rest, &rest, [0.0; 2]);
         }
         bank
     }
@@ -111,20 +123,25 @@ impl Bank {
         self.path
     }
 
-    /// Copy `i` anew at t = 0 from `(theta0, omega0)` (checked by the caller).
-    pub fn reset(&mut self, i: usize, theta0: &[f64], omega0: &[f64]) {
+    /// Copy `i` anew at t = 0 from `(theta0, omega0)` and a cart's `(x, v)` (checked by the
+    /// caller).
+    pub fn reset(&mut self, i: usize, theta0: &[f64], omega0: &[f64], cart0: [f64; 2]) {
         let n = self.chain.n();
+        let (row, work) = layout(&self.chain);
         let (g, lane) = (&mut self.groups[i / LANES], i % LANES);
         for a in 0..n {
             g.y[a][lane] = theta0[a];
             g.y[n + a][lane] = omega0[a];
         }
-        if let Some(w) = g.y.get_mut(2 * n) {
-            w[lane] = 0.0;
+        if row > 2 * n {
+            (g.y[2 * n][lane], g.y[2 * n + 1][lane]) = (cart0[0], cart0[1]);
+        }
+        if let Some(w) = work {
+            g.y[w][lane] = 0.0;
         }
         // The energies as the reports compute them (in lanes), so a copy's balance starts at 0.
         let (mut kinetic, mut energy) = ([0.0; LANES], [0.0; LANES]);
-        energies(&self.chain, &g.y[..n], &g.y[n..2 * n], &mut kinetic, &mut energy);
+        energies_on(&self.chain, &g.y[..n], &g.y[n..2 * n], (row > 2 * n).then(|| &g.y[2 * n + 1]), &mut kinetic, &mut energy);
         let (kinetic, energy) = (kinetic[lane], energy[lane]);
         self.copies[i] = Copy {
             steps: 0,
@@ -134,20 +151,23 @@ impl Bank {
         };
     }
 
-    /// Hold joint torques `u` (count x N) and advance every active copy by the whole steps of its
-    /// grid `t_k = k dt` up to `t + span` (as [`super::driver::Run`] counts them); then every
-    /// copy writes its state `(theta, omega)` and `(t, energy, energy_error)`. The first copy
+    /// Hold joint torques `u` (count x N) and a cart's forces `forces` (count values; empty
+    /// without a cart) and advance every active copy by the whole steps of its grid
+    /// `t_k = k dt` up to `t + span` (as [`super::driver::Run`] counts them); then every copy
+    /// writes its state `(theta, omega, [x, v])` and `(t, energy, energy_error)`. The first copy
     /// (by index) that fails names itself; it stays failed until reset.
+    #[allow(clippy::too_many_arguments)]
     pub fn step(
         &mut self,
         u: &[f64],
+        forces: &[f64],
         span: f64,
         active: &[bool],
         states: &mut [f64],
         balance: &mut [f64],
     ) -> Result<()> {
         let (chain, dt, path) = (&self.chain, self.dt, self.path);
-        let n = chain.n();
+        let (n, (row, _)) = (chain.n(), layout(chain));
         let one = |(gi, ((((g, copies), u), states), balance)): (
             usize,
             (
@@ -157,6 +177,9 @@ impl Bank {
         )| {
             let base = gi * LANES;
             let on = |j: usize| active.get(base + j).copied().unwrap_or(true);
+            for j in 0..copies.len() {
+                g.force[j] = forces.get(base + j).copied().unwrap_or(0.0);
+            }
             let e = run_group(path, chain, dt, g, copies, u, span, &on);
             report(chain, dt, g, copies, states, balance);
             e.map(|(j, e)| (base + j, e))
@@ -175,7 +198,7 @@ impl Bank {
                 .par_iter_mut()
                 .zip(self.copies.par_chunks_mut(LANES))
                 .zip(u.par_chunks(LANES * n))
-                .zip(states.par_chunks_mut(LANES * 2 * n))
+                .zip(states.par_chunks_mut(LANES * row))
                 .zip(balance.par_chunks_mut(LANES * 3))
                 .enumerate()
                 .filter_map(one)
@@ -190,14 +213,14 @@ impl Bank {
         }
     }
 
-    /// Every copy's state (count x 2N) and balance (count x 3).
+    /// Every copy's state (count x (2N, and 2 more with a cart)) and balance (count x 3).
     pub fn report_into(&mut self, states: &mut [f64], balance: &mut [f64]) {
-        let (chain, dt, n) = (&self.chain, self.dt, self.chain.n());
+        let (chain, dt, (row, _)) = (&self.chain, self.dt, layout(&self.chain));
         for (((g, copies), s), b) in self
             .groups
             .iter_mut()
             .zip(self.copies.chunks_mut(LANES))
-            .zip(states.chunks_mut(LANES * 2 * n))
+            .zip(states.chunks_mut(LANES * row))
             .zip(balance.chunks_mut(LANES * 3))
         {
             report(chain, dt, g, copies, s, b);
@@ -218,19 +241,19 @@ fn report(
     states: &mut [f64],
     balance: &mut [f64],
 ) {
-    let n = chain.n();
+    let (n, (len, work)) = (chain.n(), layout(chain));
     let (mut kinetic, mut energy) = ([0.0; LANES], [0.0; LANES]);
-    energies(chain, &g.y[..n], &g.y[n..2 * n], &mut kinetic, &mut energy);
+    energies_on(chain, &g.y[..n], &g.y[n..2 * n], (len > 2 * n).then(|| &g.y[2 * n + 1]), &mut kinetic, &mut energy);
     for (j, c) in copies.iter_mut().enumerate() {
-        let row = &mut states[2 * n * j..2 * n * (j + 1)];
+        let row = &mut states[len * j..len * (j + 1)];
         for (m, v) in row.iter_mut().enumerate() {
             *v = g.y[m][j];
         }
         let b = &mut balance[3 * j..3 * j + 3];
         b[0] = c.steps as f64 * dt;
         b[1] = energy[j];
-        // The torques' work and, for a lossy chain, the losses' (its lane).
-        let losses = g.y.get(2 * n).map_or(0.0, |w| w[j]);
+        // The inputs' work and, with losses, theirs (its lane).
+        let losses = work.map_or(0.0, |w| g.y[w][j]);
         b[2] = c.balance.observe(kinetic[j], energy[j], c.work + losses);
     }
 }
@@ -313,8 +336,12 @@ fn run_group_body(
             g.tau[a][j] = u[n * j + a] - next;
         }
     }
+    let cart = chain.cart().is_some();
     for a in 0..n {
         g.start[a] = g.y[a];
+    }
+    if cart {
+        g.start[n] = g.y[2 * n];
     }
     let rounds = todo.iter().copied().max().unwrap_or(0);
     let mut first_failure: Option<(usize, Error)> = None;
@@ -338,7 +365,12 @@ fn run_group_body(
             if active.iter().all(|&a| a == 0.0) {
                 break;
             }
-            match g.rk.step(chain, &mut g.y, &g.tau, dt, &active) {
+            let stepped = if cart {
+                g.rk.step_cart(chain, &mut g.y, &g.tau, &g.force, dt, &active)
+            } else {
+                g.rk.step(chain, &mut g.y, &g.tau, dt, &active)
+            };
+            match stepped {
                 Ok(nonfinite) => {
                     for j in 0..copies.len() {
                         if nonfinite[j] {
@@ -379,6 +411,10 @@ fn run_group_body(
         c.work += (0..n)
             .map(|a| g.tau[a][j] * (g.y[a][j] - g.start[a][j]))
             .sum::<f64>();
+        if cart {
+            // The held force's work, F (x_end - x_start): what rk4 gives its integral.
+            c.work += g.force[j] * (g.y[2 * n][j] - g.start[n][j]);
+        }
     }
     first_failure
 }

@@ -314,7 +314,7 @@ impl Steppers {
                 self.chain.check_state("theta0", theta0)?;
                 self.chain.check_state("omega0", omega0)?;
                 super::simulate::check_cart0(&self.chain, &settings)?;
-                bank.reset(i, theta0, omega0);
+                bank.reset(i, theta0, omega0, cart0);
             }
         }
         Ok(())
@@ -352,7 +352,7 @@ impl Steppers {
         check_finite("torques", torques)?;
         check_finite("forces", forces)?;
         let items = match &mut self.route {
-            Route::Lanes(bank) => return bank.step(torques, span, active, states, balance),
+            Route::Lanes(bank) => return bank.step(torques, forces, span, active, states, balance),
             Route::Each(items) => items,
         };
         let one = |(i, (((st, u), row), bal)): (usize, (((&mut Stepper<Joint<Builtin>>, &[f64]), &mut [f64]), &mut [f64]))| -> Option<(usize, Error)> {
@@ -612,6 +612,47 @@ mod tests {
     }
 
     #[test]
+    fn copies_on_a_cart_in_lanes_agree_with_a_stepper_each() {
+        use crate::model::Cart;
+        use crate::trig::lanes::Path;
+        for (n, losses) in [(1usize, false), (2, true), (3, false), (3, true)] {
+            let mut chain = Chain::rods(&vec![0.6; n], &vec![0.2; n], 9.81).unwrap();
+            if losses {
+                chain = chain.with_losses(&vec![0.05; n], &vec![0.02; n], 0.5).unwrap();
+            }
+            let chain = chain.with_cart(Some(Cart::new(1.0, if losses { 0.3 } else { 0.0 }).unwrap())).unwrap();
+            let s = settings("rk4", Some(0.005));
+            let mut lanes = Steppers::with_route(&chain, 10, &s, Some(Path::best())).unwrap();
+            let mut each = Steppers::with_route(&chain, 10, &s, None).unwrap();
+            assert!(lanes.route().starts_with("lanes:") && each.route() == "each");
+            for i in 0..10 {
+                let th: Vec<f64> = (0..n).map(|a| 3.0 - 0.2 * (i + a) as f64).collect();
+                let om: Vec<f64> = (0..n).map(|a| 0.5 * a as f64 - 0.1 * i as f64).collect();
+                let cart0 = [0.1 * i as f64, -0.2];
+                lanes.reset(i, &th, &om, cart0).unwrap();
+                each.reset(i, &th, &om, cart0).unwrap();
+            }
+            let k = 2 * n + 2;
+            let (mut a, mut ab, mut b, mut bb) = (vec![0.0; 10 * k], vec![0.0; 30], vec![0.0; 10 * k], vec![0.0; 30]);
+            for step in 0..30 {
+                let u: Vec<f64> = (0..10 * n).map(|m| 0.2 * ((m + step) as f64).cos()).collect();
+                let f: Vec<f64> = (0..10).map(|m| 3.0 * ((m * 7 + step) as f64).sin()).collect();
+                lanes.step(&u, &f, 0.05, &[], &mut a, &mut ab).unwrap();
+                each.step(&u, &f, 0.05, &[], &mut b, &mut bb).unwrap();
+            }
+            for (x, y) in a.iter().zip(&b) {
+                assert!((x - y).abs() <= 1e-9 * (1.0 + y.abs()), "N = {n}, losses {losses}: {x} vs {y}");
+            }
+            for c in 0..10 {
+                assert_eq!(ab[3 * c], bb[3 * c]);
+                assert!((ab[3 * c + 1] - bb[3 * c + 1]).abs() < 1e-9, "N = {n}: copy {c}");
+                // The balance with the force's work and the losses: rk4's residual, on both routes.
+                assert!((ab[3 * c + 2] - bb[3 * c + 2]).abs() < 1e-11 && ab[3 * c + 2] < 1e-3, "N = {n}, copy {c}: {} vs {}", ab[3 * c + 2], bb[3 * c + 2]);
+            }
+        }
+    }
+
+    #[test]
     fn the_lane_paths_give_the_same_bits() {
         use crate::trig::lanes::Path;
         let chain = Chain::new(&[1.0, 0.5, 0.8, 0.3], &[1.0, 2.0, 0.5, 1.0], None, None, 9.81).unwrap();
@@ -619,11 +660,11 @@ mod tests {
         for path in Path::ALL.into_iter().filter(|p| p.available()) {
             let mut bank = Bank::new(&chain, 9, 0.005, path);
             for i in 0..9 {
-                bank.reset(i, &[2.0, 2.5 - 0.1 * i as f64, -1.0, 0.5], &[0.0, 1.0, 0.0, -2.0]);
+                bank.reset(i, &[2.0, 2.5 - 0.1 * i as f64, -1.0, 0.5], &[0.0, 1.0, 0.0, -2.0], [0.0; 2]);
             }
             let (mut out, mut bal) = (vec![0.0; 72], vec![0.0; 27]);
             for _ in 0..50 {
-                bank.step(&[0.1; 36], 0.05, &[], &mut out, &mut bal).unwrap();
+                bank.step(&[0.1; 36], &[], 0.05, &[], &mut out, &mut bal).unwrap();
             }
             results.push((path.name(), out));
         }
