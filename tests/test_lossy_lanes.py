@@ -1,6 +1,7 @@
-"""Damping and friction in the SIMD lanes (issue 14): flip times, ensembles and chaos
-indicators of lossy chains run in lanes and agree with the per-trajectory routes they replace
-(forced with MULTIPENDULUM_FLIP_KERNEL=scalar / MULTIPENDULUM_LANES=scalar)."""
+"""Damping, friction and a cart in the SIMD lanes (issue 14): flip times, ensembles and chaos
+indicators of lossy chains (flip times of chains on a cart too) run in lanes and agree with the
+per-trajectory routes they replace (forced with MULTIPENDULUM_FLIP_KERNEL=scalar /
+MULTIPENDULUM_LANES=scalar)."""
 import numpy as np
 import pytest
 
@@ -22,9 +23,16 @@ def _both(monkeypatch, switch, fn):
     return fast, fn()
 
 
-@pytest.mark.parametrize("key", list(LOSSY))
+ON_CART = {
+    "double on a free cart": mp.Chain([1.0, 1.0], [1.0, 1.0], cart=mp.Cart(2.0)),
+    "triple rods on a damped cart": mp.Chain.rods([1.0, 0.5, 0.8], [1.0, 0.3, 2.0], damping=0.05,
+                                                  cart=mp.Cart(1.0, damping=0.3)),
+}
+
+
+@pytest.mark.parametrize("key", list(LOSSY) + list(ON_CART))
 def test_flip_times_of_lossy_chains_agree_with_the_per_trajectory_path(monkeypatch, key):
-    chain = LOSSY[key]
+    chain = {**LOSSY, **ON_CART}[key]
     th0 = np.random.default_rng(7).uniform(-3.0, 3.0, (300, chain.n))
     fast, slow = _both(monkeypatch, "MULTIPENDULUM_FLIP_KERNEL", lambda: mp.flip_times(chain, th0, t_max=3.0, dt=0.01))
     np.testing.assert_array_equal(np.isfinite(fast), np.isfinite(slow))

@@ -312,6 +312,10 @@ impl ChainLanes {
             for a in 0..n {
                 (self.y[a][lane], self.y[n + a][lane]) = (th[a], om[a]);
             }
+            // A cart starts at rest at the origin.
+            for m in self.y[2 * n..].iter_mut() {
+                m[lane] = 0.0;
+            }
             (self.step[lane], self.id[lane], self.active[lane]) = (0, j, 1.0);
             return;
         }
@@ -322,7 +326,8 @@ impl ChainLanes {
     }
 }
 
-/// [`run_chunk`] for an undriven ideal chain of any N, stepped by [`Rk4Lanes`]: `out[j]` for the
+/// [`run_chunk`] for an undriven chain of any N (losses and a cart included), stepped by
+/// [`Rk4Lanes`]: `out[j]` for the
 /// rows `theta0[N j..N (j + 1)]`, `omega0[..]`; `links` the links whose flip counts, in order
 /// (the first one over the top is the one timed, as on the scalar path).
 #[inline(always)]
@@ -338,11 +343,14 @@ fn run_chunk_chain(
 ) -> Result<()> {
     let n = chain.n();
     let lanes = |k| vec![[0.0; LANES]; k];
+    // A chain on a cart carries the cart's x and v after its angles and rates.
+    let cart = chain.cart().is_some();
+    let m = 2 * n + 2 * usize::from(cart);
     let mut s = ChainLanes {
-        y: lanes(2 * n),
-        y0: lanes(2 * n),
+        y: lanes(m),
+        y0: lanes(m),
         tau: lanes(n),
-        rk: Rk4Lanes::new(n),
+        rk: Rk4Lanes::with_dim(n, m),
         step: [0; LANES],
         id: [0; LANES],
         active: [0.0; LANES],
@@ -358,7 +366,12 @@ fn run_chunk_chain(
         // at once on chains of thousands of links too).
         stop.check(s.step[0] as f64 * dt)?;
         s.y0.copy_from_slice(&s.y);
-        let nonfinite = match s.rk.step(chain, &mut s.y, &s.tau, dt, &s.active) {
+        let stepped = if cart {
+            s.rk.step_cart(chain, &mut s.y, &s.tau, &[0.0; LANES], dt, &s.active)
+        } else {
+            s.rk.step(chain, &mut s.y, &s.tau, dt, &s.active)
+        };
+        let nonfinite = match stepped {
             Ok(nonfinite) => nonfinite,
             Err((stage, bad)) => {
                 let i = (0..LANES).find(|&i| bad.lanes[i]).unwrap_or(0);
@@ -618,6 +631,8 @@ mod tests {
                 .unwrap()
                 .with_losses(&vec![0.05; n], &(0..n).map(|a| if a % 2 == 0 { 0.1 } else { 0.0 }).collect::<Vec<_>>(), 0.01)
                 .unwrap(),
+            // On a cart (free, damped), starting at rest.
+            Chain::new(&l, &m, None, None, 9.81).unwrap().with_cart(Some(crate::model::Cart::new(2.0, 0.1).unwrap())).unwrap(),
         ]
     }
 

@@ -240,9 +240,9 @@ pub fn first_flips(
     watch: &Watch,
 ) -> Result<Vec<f64>> {
     let steps = check_flips(chain, theta0, omega0, t_max, dt, link)?;
-    // The kernels are the undriven chain's on a fixed pivot (the ideal double pendulum's own,
-    // any other in lanes, damping and friction included); a cart or a torque take the general path.
-    if matches!(torque, Builtin::None) && chain.cart().is_none() {
+    // The kernels are the undriven chain's (the ideal double pendulum's own, any other in lanes,
+    // damping, friction and a cart included); a torque takes the general path.
+    if matches!(torque, Builtin::None) {
         if let Some(path) = flipkernel::requested()? {
             return match (chain.n(), chain.is_ideal()) {
                 (2, true) if !flipkernel::generic() => flipkernel::first_flips_double(chain, theta0, omega0, steps, dt, link, path, watch),
