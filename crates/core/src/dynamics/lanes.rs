@@ -308,19 +308,8 @@ pub fn tangent(
         let mut r = [0.0; LANES];
         for i in 0..LANES {
             let (c, sn, dt) = (ca[i], sa[i], dth[i]);
-            // cos-sums of w^2 and d_theta w^2; sin-sums of w d_omega, accel and d_theta accel.
-            let cos1 = c * p[0][i] + sn * p[1][i];
-            let cos2 = c * p[2][i] + sn * p[3][i];
-            let sin3 = sn * p[4][i] - c * p[5][i];
-            let sin4 = sn * p[6][i] - c * p[7][i];
-            let sin5 = sn * p[8][i] - c * p[9][i];
-            r[i] = -g * ha * c * dt + ha * (cos2 - dt * cos1 - 2.0 * sin3 + dt * sin4 - sin5) + more[i];
-            let w2 = w[i] * w[i];
-            let u = [w2, dt * w2, w[i] * dw[i], acc[i], dt * acc[i]];
-            for (q, uq) in u.iter().enumerate() {
-                p[2 * q][i] += la * uq * c;
-                p[2 * q + 1][i] += la * uq * sn;
-            }
+            r[i] = -g * ha * c * dt + ha * coupled(&p, i, c, sn, dt) + more[i];
+            accumulate(&mut p, i, la, c, sn, dt, (w[i], dw[i], acc[i]));
         }
         out[a] = r;
     }
@@ -335,18 +324,8 @@ pub fn tangent(
         let mut rho = [0.0; LANES];
         for i in 0..LANES {
             let (c, sn, dt) = (ca[i], sa[i], dth[i]);
-            let cos1 = c * q[0][i] + sn * q[1][i];
-            let cos2 = c * q[2][i] + sn * q[3][i];
-            let sin3 = sn * q[4][i] - c * q[5][i];
-            let sin4 = sn * q[6][i] - c * q[7][i];
-            let sin5 = sn * q[8][i] - c * q[9][i];
-            let row = r[i] + la * (cos2 - dt * cos1 - 2.0 * sin3 + dt * sin4 - sin5);
-            let w2 = w[i] * w[i];
-            let u = [w2, dt * w2, w[i] * dw[i], acc[i], dt * acc[i]];
-            for (k, uk) in u.iter().enumerate() {
-                q[2 * k][i] += ha * uk * c;
-                q[2 * k + 1][i] += ha * uk * sn;
-            }
+            let row = r[i] + la * coupled(&q, i, c, sn, dt);
+            accumulate(&mut q, i, ha, c, sn, dt, (w[i], dw[i], acc[i]));
             let rh = row - la * (c * wx[i] + sn * wy[i]);
             wx[i] += ux[i] * rh * inv[i];
             wy[i] += uy[i] * rh * inv[i];
@@ -355,6 +334,31 @@ pub fn tangent(
         out[a] = rho;
     }
     substitute(l, out, s, &[0.0; LANES]);
+}
+
+/// The tangent's coupled sums at a link of lane `i` from the running sums `p` of the links
+/// above (or below) it: the cos-sums of `w^2` and `d_theta w^2`, the sin-sums of `w d_omega`,
+/// `accel` and `d_theta accel`, combined as the row needs them.
+#[inline(always)]
+fn coupled(p: &[Lane; 10], i: usize, c: f64, sn: f64, dt: f64) -> f64 {
+    let cos1 = c * p[0][i] + sn * p[1][i];
+    let cos2 = c * p[2][i] + sn * p[3][i];
+    let sin3 = sn * p[4][i] - c * p[5][i];
+    let sin4 = sn * p[6][i] - c * p[7][i];
+    let sin5 = sn * p[8][i] - c * p[9][i];
+    cos2 - dt * cos1 - 2.0 * sin3 + dt * sin4 - sin5
+}
+
+/// Add a link's five vectors, weighted by `weight` (`l` going up, `h` going down), to the
+/// running sums of lane `i`.
+#[inline(always)]
+fn accumulate(p: &mut [Lane; 10], i: usize, weight: f64, c: f64, sn: f64, dt: f64, (w, dw, acc): (f64, f64, f64)) {
+    let w2 = w * w;
+    let u = [w2, dt * w2, w * dw, acc, dt * acc];
+    for (q, uq) in u.iter().enumerate() {
+        p[2 * q][i] += weight * uq * c;
+        p[2 * q + 1][i] += weight * uq * sn;
+    }
 }
 
 /// [`tangent`] of the double pendulum: with `delta = d_theta_1 - d_theta_2`,
