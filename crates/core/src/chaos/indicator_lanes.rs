@@ -215,7 +215,7 @@ impl LaneSystem for TangentLanes<'_> {
                     den[i] += v[c][i] * v[c][i];
                 }
             }
-                let m = d * (1 + k);
+            let m = d * (1 + k);
             let (ym, rest) = tail[d * k..].split_at_mut(1);
             for i in 0..LANES {
                 ym[0][i] = ts * (num[i] / den[i]);

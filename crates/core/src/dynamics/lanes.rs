@@ -102,6 +102,7 @@ fn failed(ok: &[bool; LANES], active: &Lane, bad: &mut [bool; LANES]) -> bool {
 
 /// [`Chain::accelerations_double`] in lanes.
 #[inline(always)]
+#[allow(clippy::too_many_arguments)]
 fn double(
     chain: &Chain,
     theta: &[Lane],
@@ -170,6 +171,7 @@ fn double(
 
 /// [`Chain::accelerations_impl`] (with `eliminate` and `substitute`) in lanes.
 #[inline(always)]
+#[allow(clippy::too_many_arguments)]
 fn recursion(
     chain: &Chain,
     theta: &[Lane],
@@ -283,6 +285,7 @@ fn recursion(
 /// sum of `K_ab sin/cos(theta_a - theta_b)` against a vector), its five coupled sums fused into
 /// one pass up and one down; the double pendulum in closed form. Agrees with it to round-off.
 #[inline(always)]
+#[allow(clippy::too_many_arguments)]
 pub fn tangent(
     chain: &Chain,
     omega: &[Lane],
@@ -365,6 +368,7 @@ fn accumulate(p: &mut [Lane; 10], i: usize, weight: f64, c: f64, sn: f64, dt: f6
 /// `dr_1 = -g h_1 c_1 d_theta_1 - K c_12 delta w_2^2 - 2 K s_12 w_2 d_w_2 + K s_12 delta a_2` (and
 /// the mirror for the second row), solved by the 2 x 2 inverse of the accelerations.
 #[inline(always)]
+#[allow(clippy::too_many_arguments)]
 fn tangent_double(
     chain: &Chain,
     omega: &[Lane],
