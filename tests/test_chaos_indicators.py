@@ -137,7 +137,7 @@ def test_bad_requests_are_refused_by_name():
         mp.indicator(DOUBLE, REGULAR, ZERO, 1.0, "sali", deviations=[1, 0, 0, 0])
     with pytest.raises(mp.InputError, match="linearly independent"):
         mp.indicator(DOUBLE, REGULAR, ZERO, 1.0, "sali", deviations=[[1, 0, 0, 0], [2, 0, 0, 0]])
-    with pytest.raises(mp.InputError, match="must be finite"):
+    with pytest.raises(mp.InputError, match="x must be a non-empty array of finite numbers"):
         mp.indicator_map(DOUBLE, [0.1, np.nan], [0.2], t_end=1.0)
     with pytest.raises(mp.InputError, match="dt must be > 0"):
         mp.megno(DOUBLE, REGULAR, ZERO, 1.0, dt=-0.1)
