@@ -440,8 +440,8 @@ def ensemble(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: 
     O(B N steps). Results are identical whatever the number of threads. ``progress`` as for
     :func:`lyapunov`.
 
-    Undriven chains on a fixed pivot (damping and friction included, no cart), run by ``rk4``,
-    go through SIMD lanes (eight trajectories at a time, several times faster); they agree with the per-trajectory route
+    Undriven chains (damping, friction and a cart included), run by ``rk4``, go through SIMD
+    lanes (eight trajectories at a time, several times faster); they agree with the per-trajectory route
     (a batch :func:`simulate` with a non-terminal :class:`Flip` event) to round-off, and do not
     depend on the CPU's vector width. ``MULTIPENDULUM_LANES=scalar`` forces that route."""
 

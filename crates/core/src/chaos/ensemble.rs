@@ -1,5 +1,6 @@
-//! Ensembles in SIMD lanes: many undriven chains on a fixed pivot (damping and friction included:
-//! their work rides along as one more lane, for the energy balance; no torque, no cart) run by rk4
+//! Ensembles in SIMD lanes: many undriven chains (damping, friction and a cart included: the
+//! cart's state and the losses' work ride along as more lanes, for the energy balance; the cart
+//! starts at rest at the origin, as a run's does by default; no torque) run by rk4
 //! to `t_end` on the driver's grid (`t_k = k dt`, the last step shortened to land on `t_end`),
 //! eight to a group of lanes ([`Rk4Lanes`]), keeping only what `mp.ensemble` reports: the final
 //! states and momenta, the energy error at `t_end`, the number of steps, and the first time any
@@ -41,10 +42,10 @@ pub struct Ensemble {
 }
 
 /// Whether an ensemble of `chain` run with `method` goes through the lanes: an undriven chain
-/// on a fixed pivot (the caller passes no torque; losses allowed) on rk4's Lagrangian form, unless `MULTIPENDULUM_LANES`
+/// (the caller passes no torque; losses and a cart allowed) on rk4's Lagrangian form, unless `MULTIPENDULUM_LANES`
 /// asks for the per-trajectory route. `None`: the per-trajectory route.
 pub fn route(chain: &Chain, method: Method) -> Result<Option<Path>> {
-    if !(chain.cart().is_none() && method == Method::Rk4) {
+    if method != Method::Rk4 {
         return Ok(None);
     }
     crate::run::bank::requested()
@@ -123,8 +124,12 @@ fn run_chunk(chain: &Chain, th: &[f64], om: &[f64], t_end: f64, dt: f64, steps: 
     let n = chain.n();
     let rows = th.len() / n;
     let lanes = |k| vec![[0.0; LANES]; k];
-    // A lossy chain carries the losses' work (-D) as one more lane, for its energy balance.
-    let m = 2 * n + usize::from(chain.lossy_joints());
+    // A chain on a cart carries the cart's x and v (from rest at the origin) after its angles
+    // and rates; a lossy chain, or one on a cart, the losses' work (-D) as one more lane, for its
+    // energy balance.
+    let cart = chain.cart().is_some();
+    let row = 2 * n + 2 * usize::from(cart);
+    let m = row + usize::from(cart || chain.lossy_joints());
     let (mut y, mut y0, tau) = (lanes(m), lanes(m), lanes(n));
     let mut rk = Rk4Lanes::with_dim(n, m);
     let (mut ws, mut scratch) = (Workspace::new(n), vec![0.0; n]);
@@ -164,7 +169,12 @@ fn run_chunk(chain: &Chain, th: &[f64], om: &[f64], t_end: f64, dt: f64, steps: 
             let t = k as f64 * dt;
             let h = if k + 1 == steps { t_end - t } else { dt };
             y0.copy_from_slice(&y);
-            let nonfinite = rk.step(chain, &mut y, &tau, h, &active).map_err(|(stage, bad)| {
+            let stepped = if cart {
+                rk.step_cart(chain, &mut y, &tau, &[0.0; LANES], h, &active)
+            } else {
+                rk.step(chain, &mut y, &tau, h, &active)
+            };
+            let nonfinite = stepped.map_err(|(stage, bad)| {
                 let j = (0..LANES).find(|&j| bad.lanes[j]).unwrap_or(0);
                 let at = t + [0.0, 0.5, 0.5, 1.0][stage] * h;
                 Error::integration(at, format!("trajectory {}: {}", first + lo + j, bad.link.reason()))
@@ -196,10 +206,12 @@ fn run_chunk(chain: &Chain, th: &[f64], om: &[f64], t_end: f64, dt: f64, steps: 
                 theta[a] = y[a][j];
                 omega[a] = y[n + a][j];
             }
-            let kinetic = chain.kinetic_energy(theta, omega, &mut scratch, &mut ws);
-            let work = y.get(2 * n).map_or(0.0, |w| w[j]);
+            // The lab frame's kinetic energy and the momenta with the cart's velocity.
+            let v = if cart { y[2 * n + 1][j] } else { 0.0 };
+            let kinetic = chain.kinetic_energy_moving(theta, omega, [v, 0.0], &mut scratch, &mut ws);
+            let work = y.get(row).map_or(0.0, |w| w[j]);
             out.energy_error[r] = balance.observe(kinetic, kinetic + chain.potential_energy(theta), work);
-            chain.momenta_into(theta, omega, &mut out.p[n * r..n * (r + 1)], &mut ws);
+            chain.momenta_general(theta, omega, v, &mut out.p[n * r..n * (r + 1)], &mut ws);
         }
     }
     Ok(out)
@@ -219,6 +231,14 @@ mod tests {
             Chain::new(&[0.4; 5], &[1.0, 0.5, 2.0, 1.0, 0.1], Some(&[0.2; 5]), Some(&[0.01; 5]), 3.7).unwrap(),
             Chain::new(&[1.0, 1.0], &[1.0, 1.0], None, None, 9.81).unwrap().with_losses(&[0.1, 0.3], &[0.2, 0.0], 0.05).unwrap(),
             Chain::rods(&[1.0, 0.5, 0.8], &[1.0, 0.3, 2.0], 9.81).unwrap().with_losses(&[0.0, 0.2, 0.1], &[0.1, 0.1, 0.0], 1e-3).unwrap(),
+            // On carts: free (its horizontal momentum kept), and damped with joint losses.
+            Chain::new(&[1.0, 1.0], &[1.0, 1.0], None, None, 9.81).unwrap().with_cart(Some(crate::model::Cart::new(2.0, 0.0).unwrap())).unwrap(),
+            Chain::rods(&[1.0, 0.5, 0.8], &[1.0, 0.3, 2.0], 9.81)
+                .unwrap()
+                .with_losses(&[0.05; 3], &[0.0; 3], 1e-3)
+                .unwrap()
+                .with_cart(Some(crate::model::Cart::new(1.0, 0.3).unwrap()))
+                .unwrap(),
         ]
     }
 
