@@ -321,6 +321,17 @@ def _map_allowed_block(yb: npt.NDArray[np.float64], xb: npt.NDArray[np.float64],
     return np.asarray(chain.energy(theta0, omega0) >= threshold)
 
 
+def _map_arrays(da: ModuleType, Y: Any, X: Any, name: str, plain: Callable[..., Any],
+                certified: Optional[Callable[..., Any]]) -> List[Tuple[str, Any]]:
+    """A 2-D map's Dask arrays: ``name`` from ``plain``'s blocks, or, certified, ``name`` and
+    ``uncertain`` as the two slices of ``certified``'s blocks (one task runs both steps)."""
+    if certified is None:
+        return [(name, da.blockwise(plain, "ij", Y, "i", X, "j", dtype=np.float64, meta=np.empty((0, 0))))]
+    both = da.blockwise(certified, "ijk", Y, "i", X, "j", new_axes={"k": 2}, dtype=np.float64,
+                        meta=np.empty((0, 0, 0)))
+    return [(name, both[..., 0]), ("uncertain", both[..., 1] != 0.0)]
+
+
 def _chunk_shape(chunks: Union[None, Integer, Tuple[Integer, Integer]], ny: int, nx: int) -> Tuple[int, int]:
     if chunks is None:
         cols = nx
@@ -402,16 +413,9 @@ def sweep_flip_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_max: floa
                  link=link, torque=torque)
     energy = functools.partial(_map_allowed_block, chain=chain, vary=vary, th_base=th_base, om_base=om_base,
                                threshold=threshold)
-    arrays: List[Tuple[str, Any]]
-    if certified:
-        # One task per block runs both steps; the times and flags are its two slices.
-        kernel = functools.partial(_map_certified_block, time_tolerance=time_tolerance, **block)
-        both = da.blockwise(kernel, "ijk", Y, "i", X, "j", new_axes={"k": 2}, dtype=np.float64,
-                            meta=np.empty((0, 0, 0)))
-        arrays = [("times", both[..., 0]), ("uncertain", both[..., 1] != 0.0)]
-    else:
-        kernel = functools.partial(_map_times_block, **block)
-        arrays = [("times", da.blockwise(kernel, "ij", Y, "i", X, "j", dtype=np.float64, meta=np.empty((0, 0))))]
+    arrays = _map_arrays(da, Y, X, "times", functools.partial(_map_times_block, **block),
+                         functools.partial(_map_certified_block, time_tolerance=time_tolerance, **block)
+                         if certified else None)
     arrays.insert(1, ("allowed", da.blockwise(energy, "ij", Y, "i", X, "j", dtype=bool,
                                               meta=np.empty((0, 0), dtype=bool))))
     if path is None:
@@ -672,16 +676,9 @@ def sweep_indicator_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_end:
     X = da.from_array(x, chunks=cols)
     block: Dict[str, Any] = dict(chain=chain, vary=vary, th_base=th_base, om_base=om_base, t_end=float(t_end),
                                  indicator=indicator, k=k, dt=float(dt), torque=torque)
-    arrays: List[Tuple[str, Any]]
-    if certified:
-        # One task per block runs both steps; the values and flags are its two slices.
-        kernel = functools.partial(_map_certified_indicator_block, threshold=threshold, **block)
-        both = da.blockwise(kernel, "ijk", Y, "i", X, "j", new_axes={"k": 2}, dtype=np.float64,
-                            meta=np.empty((0, 0, 0)))
-        arrays = [("values", both[..., 0]), ("uncertain", both[..., 1] != 0.0)]
-    else:
-        kernel = functools.partial(_map_indicator_block, **block)
-        arrays = [("values", da.blockwise(kernel, "ij", Y, "i", X, "j", dtype=np.float64, meta=np.empty((0, 0))))]
+    arrays = _map_arrays(da, Y, X, "values", functools.partial(_map_indicator_block, **block),
+                         functools.partial(_map_certified_indicator_block, threshold=threshold, **block)
+                         if certified else None)
     label = f"{indicator} map"
     k_ = None if k is None else int(k)
     if path is None:
