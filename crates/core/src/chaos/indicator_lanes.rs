@@ -166,10 +166,7 @@ struct TangentLanes<'a> {
     chain: &'a Chain,
     k: usize,
     megno: bool,
-    t: f64,
-    h: f64,
     tau: &'a [Lane],
-    active: &'a Lane,
     /// A lossy chain's forces and their tangent.
     q: &'a mut [Lane],
     dq: &'a mut [Lane],
@@ -177,7 +174,7 @@ struct TangentLanes<'a> {
 
 impl LaneSystem for TangentLanes<'_> {
     #[inline(always)]
-    fn rates(&mut self, stage: usize, src: &[Lane], dst: &mut [Lane], scratch: &mut LaneScratch) -> std::result::Result<(), LaneSingular> {
+    fn rates(&mut self, at: &Lane, src: &[Lane], dst: &mut [Lane], scratch: &mut LaneScratch, active: &Lane) -> std::result::Result<(), LaneSingular> {
         let (chain, n, k) = (self.chain, self.chain.n(), self.k);
         let d = 2 * n;
         let (head, tail) = dst.split_at_mut(d);
@@ -189,7 +186,7 @@ impl LaneSystem for TangentLanes<'_> {
             add_losses(chain, &src[n..d], self.q, &mut [0.0; LANES]);
         }
         let forces: &[Lane] = if lossy { self.q } else { self.tau };
-        accelerations(chain, &src[..n], &src[n..d], forces, &mut head[n..], scratch, self.active)?;
+        accelerations(chain, &src[..n], &src[n..d], forces, &mut head[n..], scratch, active)?;
         for j in 0..k {
             let v = &src[d * (j + 1)..d * (j + 2)];
             let dv = &mut tail[d * j..d * (j + 1)];
@@ -204,9 +201,8 @@ impl LaneSystem for TangentLanes<'_> {
         }
         if self.megno {
             // y' = t (d' . d) / (d . d), w' = 2 y / t (see `Tangent::megno_rates`), at the
-            // stage's time as `Rk4::step` takes it.
-            let (t, half) = (self.t, 0.5 * self.h);
-            let ts = [t, t + half, t + half, t + self.h][stage];
+            // stage's time (the same in every lane).
+            let ts = at[0];
             let (v, dv) = (&src[d..2 * d], &tail[..d]);
             let (mut num, mut den) = ([0.0; LANES], [0.0; LANES]);
             for c in 0..d {
@@ -291,8 +287,8 @@ impl Group {
             // Every step: a relaxed load against eight states' step (long chains take long).
             job.watch.check(t)?;
             let h = job.dt;
-            let mut sys = TangentLanes { chain, k, megno, t, h, tau, active: &active, q: &mut q[..], dq: &mut dq[..] };
-            let stepped = rk.step_system(y, h, &active, &mut sys);
+            let mut sys = TangentLanes { chain, k, megno, tau, q: &mut q[..], dq: &mut dq[..] };
+            let stepped = rk.step_system(y, t, h, &active, &mut sys);
             match stepped {
                 Ok(nonfinite) if !nonfinite.iter().any(|&b| b) => {}
                 _ => return Ok(None),

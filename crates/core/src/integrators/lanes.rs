@@ -13,72 +13,45 @@ use crate::trig::lanes::{Lane, LANES};
 /// a closure's body would be a function of its own on the baseline target (no FMA: `mul_add`
 /// becomes a call to `fma()`).
 pub trait LaneSystem {
-    /// The rates at the stage's state `y` into `dy` (stage `0..4` at `t`, `t + dt/2`, `t + dt/2`,
-    /// `t + dt`), with `scratch` for the accelerations.
-    fn rates(&mut self, stage: usize, y: &[Lane], dy: &mut [Lane], scratch: &mut LaneScratch) -> std::result::Result<(), LaneSingular>;
+    /// The rates at the stage's state `y` and times `at` (one per lane) into `dy`, with `scratch`
+    /// for the accelerations. Every lane is computed; only the `active` ones (`> 0`) are checked
+    /// (an inactive lane's rates may be anything, and stay in its own lane).
+    fn rates(&mut self, at: &Lane, y: &[Lane], dy: &mut [Lane], scratch: &mut LaneScratch, active: &Lane) -> std::result::Result<(), LaneSingular>;
 }
 
-/// `y = [theta, omega]` under torques `tau` held over the step.
-struct Plain<'a> {
-    chain: &'a Chain,
-    tau: &'a [Lane],
-    active: &'a Lane,
+/// A chain's own equations in lanes under generalized torques `tau` held over the step:
+/// `y = [theta (N), omega (N)]`, then the cart's `[x, v]` under `force` (less its damping) on a
+/// chain with a cart, then, if `y` has room for it, the work `W` of the joints' losses and the
+/// cart's damping (`W' = -P`, the power they take), which a lossy chain feels at every stage.
+pub struct ChainLanes<'a> {
+    pub chain: &'a Chain,
+    pub tau: &'a [Lane],
+    /// The force on the cart (unused without one).
+    pub force: &'a Lane,
+    /// The generalized forces with the losses (`N` lanes of scratch).
+    pub q: &'a mut [Lane],
 }
 
-impl LaneSystem for Plain<'_> {
+impl LaneSystem for ChainLanes<'_> {
     #[inline(always)]
-    fn rates(&mut self, _stage: usize, y: &[Lane], dy: &mut [Lane], scratch: &mut LaneScratch) -> std::result::Result<(), LaneSingular> {
-        let n = self.chain.n();
-        let (head, tail) = dy.split_at_mut(n);
-        head.copy_from_slice(&y[n..2 * n]);
-        accelerations(self.chain, &y[..n], &y[n..2 * n], self.tau, tail, scratch, self.active)
-    }
-}
-
-/// `y = [theta, omega]` or `[theta, omega, W]` under `tau` held over the step and the joints'
-/// losses at each stage's rates (`W' = -P`, the losses' work).
-struct Lossy<'a> {
-    chain: &'a Chain,
-    tau: &'a [Lane],
-    active: &'a Lane,
-    q: &'a mut [Lane],
-}
-
-impl LaneSystem for Lossy<'_> {
-    #[inline(always)]
-    fn rates(&mut self, _stage: usize, y: &[Lane], dy: &mut [Lane], scratch: &mut LaneScratch) -> std::result::Result<(), LaneSingular> {
-        let n = self.chain.n();
-        let (head, tail) = dy.split_at_mut(n);
-        head.copy_from_slice(&y[n..2 * n]);
-        self.q.copy_from_slice(self.tau);
-        let mut power = [0.0; LANES];
-        add_losses(self.chain, &y[n..2 * n], self.q, &mut power);
-        accelerations(self.chain, &y[..n], &y[n..2 * n], self.q, &mut tail[..n], scratch, self.active)?;
-        if let Some(work) = tail.get_mut(n) {
-            *work = power.map(|p| -p);
-        }
-        Ok(())
-    }
-}
-
-/// `y = [theta, omega, x, v, W]` of a chain on a cart under `tau` and the cart force held over
-/// the step, the joints' losses and the cart's damping at each stage's rates (`W' = -P`).
-struct OnCart<'a> {
-    chain: &'a Chain,
-    tau: &'a [Lane],
-    force: &'a Lane,
-    active: &'a Lane,
-    q: &'a mut [Lane],
-}
-
-impl LaneSystem for OnCart<'_> {
-    #[inline(always)]
-    fn rates(&mut self, _stage: usize, y: &[Lane], dy: &mut [Lane], scratch: &mut LaneScratch) -> std::result::Result<(), LaneSingular> {
+    fn rates(&mut self, _at: &Lane, y: &[Lane], dy: &mut [Lane], scratch: &mut LaneScratch, active: &Lane) -> std::result::Result<(), LaneSingular> {
         let chain = self.chain;
         let n = chain.n();
-        let damping = chain.cart().map_or(0.0, |c| c.damping);
         let (head, tail) = dy.split_at_mut(n);
         head.copy_from_slice(&y[n..2 * n]);
+        let Some(cart) = chain.cart() else {
+            if !chain.lossy_joints() {
+                return accelerations(chain, &y[..n], &y[n..2 * n], self.tau, tail, scratch, active);
+            }
+            self.q.copy_from_slice(self.tau);
+            let mut power = [0.0; LANES];
+            add_losses(chain, &y[n..2 * n], self.q, &mut power);
+            accelerations(chain, &y[..n], &y[n..2 * n], self.q, &mut tail[..n], scratch, active)?;
+            if let Some(work) = tail.get_mut(n) {
+                *work = power.map(|p| -p);
+            }
+            return Ok(());
+        };
         self.q.copy_from_slice(self.tau);
         let mut power = [0.0; LANES];
         if chain.lossy_joints() {
@@ -87,12 +60,12 @@ impl LaneSystem for OnCart<'_> {
         let v = y[2 * n + 1];
         let mut force = [0.0; LANES];
         for i in 0..LANES {
-            force[i] = self.force[i] - damping * v[i];
-            power[i] += damping * v[i] * v[i];
+            force[i] = self.force[i] - cart.damping * v[i];
+            power[i] += cart.damping * v[i] * v[i];
         }
         let (acc, rest) = tail.split_at_mut(n);
         let mut x_ddot = [0.0; LANES];
-        accelerations_cart(chain, &y[..n], &y[n..2 * n], self.q, acc, scratch, self.active, CartLanes { force: &force, x_ddot: &mut x_ddot })?;
+        accelerations_cart(chain, &y[..n], &y[n..2 * n], self.q, acc, scratch, active, CartLanes { force: &force, x_ddot: &mut x_ddot })?;
         rest[0] = v;
         rest[1] = x_ddot;
         if let Some(work) = rest.get_mut(2) {
@@ -140,13 +113,7 @@ impl Rk4Lanes {
         dt: f64,
         active: &Lane,
     ) -> std::result::Result<[bool; LANES], (usize, LaneSingular)> {
-        if chain.lossy_joints() {
-            let mut q = std::mem::take(&mut self.q);
-            let out = self.step_system(y, dt, active, &mut Lossy { chain, tau, active, q: &mut q });
-            self.q = q;
-            return out;
-        }
-        self.step_system(y, dt, active, &mut Plain { chain, tau, active })
+        self.step_cart(chain, y, tau, &[0.0; LANES], dt, active)
     }
 
     /// [`Rk4Lanes::step`] of a chain on a cart: `y = [theta (N), omega (N), x, v, W]` under
@@ -163,16 +130,18 @@ impl Rk4Lanes {
         active: &Lane,
     ) -> std::result::Result<[bool; LANES], (usize, LaneSingular)> {
         let mut q = std::mem::take(&mut self.q);
-        let out = self.step_system(y, dt, active, &mut OnCart { chain, tau, force, active, q: &mut q });
+        // The chain's equations do not depend on time: the steps' times are immaterial.
+        let out = self.step_system(y, 0.0, dt, active, &mut ChainLanes { chain, tau, force, q: &mut q });
         self.q = q;
         out
     }
 
-    /// [`Rk4Lanes::step`] of any system built on the chain (see [`LaneSystem`]).
+    /// [`Rk4Lanes::step`] of any system built on the chain (see [`LaneSystem`]) from time `t`.
     #[inline(always)]
     pub fn step_system(
         &mut self,
         y: &mut [Lane],
+        t: f64,
         dt: f64,
         active: &Lane,
         sys: &mut impl LaneSystem,
@@ -183,7 +152,8 @@ impl Rk4Lanes {
         for stage in 0..4 {
             {
                 let src: &[Lane] = if stage == 0 { &y[..] } else { &tmp[..] };
-                sys.rates(stage, src, &mut k[stage], scratch).map_err(|s| (stage, s))?;
+                let at = [[t, t + half, t + half, t + dt][stage]; LANES];
+                sys.rates(&at, src, &mut k[stage], scratch, active).map_err(|s| (stage, s))?;
             }
             if stage < 3 {
                 let h = if stage < 2 { half } else { dt };
