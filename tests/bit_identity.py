@@ -10,6 +10,7 @@ leaves every recorded one as it is.
 """
 import hashlib
 import json
+import os
 import sys
 import tempfile
 from pathlib import Path
@@ -95,10 +96,26 @@ def cases():
     out.append(("flip_map", lambda: _digest(mp.flip_map(
         mp.Chain([1, 1], [1, 1]), np.linspace(-3, 3, 24), np.linspace(-3, 3, 20), t_max=5.0).times)))
     # (Not its energy_error: redefined on purpose against the initial state, issue 12.)
-    out.append(("ensemble", lambda: (lambda e: _digest(e.theta, e.omega, e.first_flip))(
-        mp.ensemble(rods, np.random.default_rng(7).uniform(-2, 2, (32, 3)), np.zeros((32, 3)), 3.0))))
+    # The per-trajectory route (recorded before dop853 ensembles took the lanes, issue 14), and
+    # the lanes' own.
+    ensemble = lambda: (lambda e: _digest(e.theta, e.omega, e.first_flip))(
+        mp.ensemble(rods, np.random.default_rng(7).uniform(-2, 2, (32, 3)), np.zeros((32, 3)), 3.0))
+    out.append(("ensemble", lambda: _with_env("MULTIPENDULUM_LANES", "scalar", ensemble)))
+    out.append(("ensemble_lanes", ensemble))
     out.append(("jacobian", lambda: _digest(rods.jacobian(th3, om3))))
     return out
+
+
+def _with_env(name, value, thunk):
+    old = os.environ.get(name)
+    os.environ[name] = value
+    try:
+        return thunk()
+    finally:
+        if old is None:
+            del os.environ[name]
+        else:
+            os.environ[name] = old
 
 
 def _checkpointed(chain, th, om, method, kw):

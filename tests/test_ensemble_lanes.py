@@ -1,6 +1,7 @@
 """mp.ensemble in SIMD lanes (issue 14): undriven chains (damping, friction and a cart included)
-run by rk4 go through the core's lanes; the per-trajectory route (a batch simulate with a non-terminal Flip event, forced with
-MULTIPENDULUM_LANES=scalar) is the reference they must agree with."""
+run by rk4 or dop853 go through the core's lanes; the per-trajectory route (a batch simulate with
+a non-terminal Flip event, forced with MULTIPENDULUM_LANES=scalar) is the reference they must
+agree with: rk4 to round-off, dop853 (each lane with its own steps) to its tolerance."""
 import numpy as np
 import pytest
 
@@ -69,8 +70,43 @@ def test_a_row_has_the_same_bits_alone_and_in_any_batch():
         assert one.first_flip[0] == batch.first_flip[i] or np.isinf(batch.first_flip[i])
 
 
+@pytest.mark.parametrize("key", [2, 3, "2, damped with friction", "3 on a damped cart"])
+def test_dop853_lanes_agree_with_the_per_trajectory_route_to_its_tolerance(monkeypatch, key):
+    chain = CHAINS[key]
+    n = chain.n
+    rng = np.random.default_rng(n + 10)
+    th0 = rng.uniform(-3.0, 3.0, (30, n))
+    om0 = rng.uniform(-2, 2, (30, n))
+    fast, slow = both_routes(monkeypatch, chain, th0, om0, 0.834)
+    # The steps' sizes drift apart by round-off that the controller amplifies (its error
+    # estimate cancels to round-off): agreement to the tolerance's scale, not to round-off.
+    for name in ("theta", "omega", "p"):
+        a, b = getattr(fast, name), getattr(slow, name)
+        assert np.all(np.abs(a - b) <= 1e-8 * (1 + np.abs(b))), (name, np.max(np.abs(a - b)))
+    assert np.all(np.abs(fast.steps - slow.steps) <= max(1, 0.05 * slow.steps.max())), (fast.steps, slow.steps)
+    assert abs(int(fast.steps.sum()) - int(slow.steps.sum())) <= 0.02 * slow.steps.sum()
+    np.testing.assert_allclose(fast.energy_error, slow.energy_error, rtol=0, atol=1e-10)
+    assert fast.energy_error.max() < 1e-8
+    np.testing.assert_array_equal(np.isfinite(fast.first_flip), np.isfinite(slow.first_flip))
+    flipped = np.isfinite(slow.first_flip)
+    assert flipped.sum() > 3
+    np.testing.assert_allclose(fast.first_flip[flipped], slow.first_flip[flipped], rtol=0, atol=1e-8)
+
+
+def test_dop853_lanes_meet_the_tolerance_they_are_given():
+    # Regular motion against a run 1000 times tighter: the global error follows the tolerance.
+    chain = CHAINS[3]
+    th0 = np.random.default_rng(4).uniform(-0.8, 0.8, (24, 3))
+    om0 = np.zeros_like(th0)
+    exact = mp.ensemble(chain, th0, om0, 5.0, rtol=1e-13, atol=1e-15)
+    errors = {rtol: np.max(np.abs(mp.ensemble(chain, th0, om0, 5.0, rtol=rtol, atol=rtol * 1e-2).theta - exact.theta))
+              for rtol in (1e-6, 1e-9)}
+    assert errors[1e-9] < 1e-7 and errors[1e-6] < 1e-4, errors
+    assert errors[1e-6] / errors[1e-9] > 30, errors  # tighter tolerance, smaller error
+
+
 @pytest.mark.parametrize("kwargs", [
-    dict(method="dop853"),                                           # another method
+    dict(method="gauss4", dt=0.01),                                  # another method
     dict(method="rk4", dt=0.01, torque=mp.Sinusoid(0.3, 1.0)),       # driven
 ])
 def test_what_the_lanes_do_not_cover_takes_the_per_trajectory_route(monkeypatch, kwargs):
@@ -99,15 +135,21 @@ def test_a_damped_ensembles_energy_balance_closes_at_rk4s_order():
     (dict(dt=0.01, t_end=-1.0), "t_end must be > 0 and finite, got -1"),
     (dict(dt=None), "method rk4 takes a fixed step: give dt"),
     (dict(dt=1e-12, t_end=1e6), "max_steps"),
+    (dict(method="dop853", rtol=1e-17), "rtol"),
+    (dict(method="dop853", atol=-1.0), "atol"),
+    (dict(method="dop853", dt=-0.5), "dt must be > 0 and finite, got -0.5"),
 ])
 def test_bad_input_gives_the_same_error_on_both_routes(monkeypatch, kwargs, message):
-    kwargs = {"t_end": 1.0, **kwargs}
+    kwargs = {"t_end": 1.0, "method": "rk4", **kwargs}
     th0 = np.full((3, 2), 0.1)
+    errors = []
     for route in ("auto", "scalar"):
         monkeypatch.setenv(SWITCH, route)
         with pytest.raises(mp.InputError) as e:
-            mp.ensemble(CHAINS[2], th0, np.zeros_like(th0), kwargs["t_end"], method="rk4", dt=kwargs["dt"])
+            mp.ensemble(CHAINS[2], th0, np.zeros_like(th0), **kwargs)
         assert message in str(e.value), (route, str(e.value))
+        errors.append(str(e.value))
+    assert errors[0] == errors[1]
 
 
 def test_a_blow_up_names_its_trajectory_on_both_routes(monkeypatch):
@@ -116,6 +158,8 @@ def test_a_blow_up_names_its_trajectory_on_both_routes(monkeypatch):
     om0[2, 0] = 1e200
     for route in ("auto", "scalar"):
         monkeypatch.setenv(SWITCH, route)
-        with pytest.raises(mp.IntegrationError) as e:
-            mp.ensemble(CHAINS[2], th0, om0, 1.0, method="rk4", dt=0.01)
-        assert "trajectory 2:" in str(e.value), (route, str(e.value))
+        for kwargs in (dict(method="rk4", dt=0.01), dict(method="dop853", dt=0.01, rtol=1e-6)):
+            with pytest.raises(mp.IntegrationError) as e:
+                mp.ensemble(CHAINS[2], th0, om0, 1.0, **kwargs)
+            assert "trajectory 2:" in str(e.value), (route, kwargs, str(e.value))
+

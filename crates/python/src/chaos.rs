@@ -211,15 +211,15 @@ type EnsembleOut<'py> = (
     Bound<'py, PyArray1<f64>>,
     Bound<'py, PyArray1<f64>>,
     Bound<'py, PyArray1<f64>>,
-    u64,
+    Bound<'py, PyArray1<u64>>,
     Bound<'py, PyArray1<f64>>,
 );
 
 /// An undriven ensemble in SIMD lanes (`core::chaos::ensemble`): `(theta, omega, p, energy_error,
-/// steps, first_flip)` flat, or None where the core sends it the per-trajectory way (another
-/// method, a chain with losses or a cart, no `dt`, or `MULTIPENDULUM_LANES=scalar`).
+/// steps, first_flip)` flat, or None where the core sends it the per-trajectory way (a method
+/// other than rk4 and dop853, or `MULTIPENDULUM_LANES=scalar`).
 #[pyfunction]
-#[pyo3(signature = (chain, theta0, omega0, t_end, *, method, dt=None, progress=None))]
+#[pyo3(signature = (chain, theta0, omega0, t_end, *, method, dt=None, rtol, atol, progress=None))]
 #[allow(clippy::too_many_arguments)]
 fn ensemble<'py>(
     py: Python<'py>,
@@ -229,17 +229,20 @@ fn ensemble<'py>(
     t_end: f64,
     method: &str,
     dt: Option<f64>,
+    rtol: f64,
+    atol: f64,
     progress: Option<Py<PyAny>>,
 ) -> PyResult<Option<EnsembleOut<'py>>> {
     let c = &chain.inner;
     let method = core::Method::parse(method).map_err(|e| to_py(py, e))?;
-    let (Some(dt), Some(path)) = (dt, core::chaos::ensemble::route(c, method).map_err(|e| to_py(py, e))?) else {
+    let Some(path) = core::chaos::ensemble::route(method).map_err(|e| to_py(py, e))? else {
         return Ok(None);
     };
+    let settings = core::Settings { method, dt, rtol, atol, ..core::Settings::default() };
     let (theta0, omega0) = (slice("theta0", &theta0)?, slice("omega0", &omega0)?);
     let watch = Watch::units((theta0.len() / c.n().max(1)) as u64);
     let out = interruptible(py, &watch, progress.as_ref(), false, || {
-        core::chaos::ensemble::ensemble(c, theta0, omega0, t_end, dt, path, &watch)
+        core::chaos::ensemble::ensemble(c, theta0, omega0, t_end, &settings, path, &watch)
     })?
     .map_err(|e| to_py(py, e))?;
     Ok(Some((
@@ -247,7 +250,7 @@ fn ensemble<'py>(
         vec_out(py, out.omega),
         vec_out(py, out.p),
         vec_out(py, out.energy_error),
-        out.steps,
+        PyArray1::from_vec(py, out.steps),
         vec_out(py, out.first_flip),
     )))
 }

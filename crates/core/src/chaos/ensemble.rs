@@ -1,28 +1,39 @@
 //! Ensembles in SIMD lanes: many undriven chains (damping, friction and a cart included: the
 //! cart's state and the losses' work ride along as more lanes, for the energy balance; the cart
-//! starts at rest at the origin, as a run's does by default; no torque) run by rk4
-//! to `t_end` on the driver's grid (`t_k = k dt`, the last step shortened to land on `t_end`),
-//! eight to a group of lanes ([`Rk4Lanes`]), keeping only what `mp.ensemble` reports: the final
-//! states and momenta, the energy error at `t_end`, the number of steps, and the first time any
-//! link went over the top (the first upward crossing of `max_i |theta_i| = pi`, the non-terminal
-//! `Flip` event of the per-trajectory route, located on the step's cubic Hermite interpolant).
-//! A row agrees with the per-trajectory route (a batch `simulate` with that event) to round-off:
-//! the lanes' own `sin`/`cos` and fused product-sums; its bits depend neither on the other rows
-//! nor on the number of threads, and are the same on the AVX-512, AVX2 and portable paths.
+//! starts at rest at the origin, as a run's does by default; no torque), eight to a group of
+//! lanes, keeping only what `mp.ensemble` reports: the final states and momenta, the energy
+//! error at `t_end`, each row's number of steps, and the first time any link went over the top
+//! (the first upward crossing of `max_i |theta_i| = pi`, the non-terminal `Flip` event of the
+//! per-trajectory route).
+//!
+//! - rk4 ([`Rk4Lanes`]) on the driver's grid (`t_k = k dt`, the last step shortened to land on
+//!   `t_end`), the flip located on the step's cubic Hermite interpolant. A row agrees with the
+//!   per-trajectory route (a batch `simulate` with that event) to round-off: the lanes' own
+//!   `sin`/`cos` and fused product-sums.
+//! - dop853 ([`Dop853Lanes`]), each lane with its own time and step as the run driver's
+//!   controlled steps, a finished lane refilled with the next row; the flip located on the
+//!   7th-order interpolant by the events' own root finder. A row agrees with the per-trajectory
+//!   route to the tolerance: the error estimate cancels to round-off, so the steps drift apart.
+//!
+//! A row's bits depend neither on the other rows nor on the number of threads, and are the same
+//! on the AVX-512, AVX2 and portable paths.
 use std::f64::consts::PI;
 
 use super::flip_time;
 use crate::dynamics::system::NON_FINITE;
 use crate::dynamics::Workspace;
 use crate::error::{Error, Result};
-use crate::integrators::lanes::Rk4Lanes;
-use crate::integrators::Method;
+use crate::dynamics::system::Form;
+use crate::integrators::dop853_lanes::{Dop853Lanes, StartFailure};
+use crate::integrators::lanes::{ChainLanes, Rk4Lanes};
+use crate::integrators::{Controller, Decision, Method};
 use crate::model::Chain;
 use crate::par::*;
-use crate::run::driver::fixed_steps;
+use crate::run::driver::{fixed_steps, max_steps_reached, min_step, UNDERFLOW};
+use crate::run::events::{Condition, EventSpec, Tracker};
 use crate::run::energy::EnergyBalance;
 use crate::run::Settings;
-use crate::trig::lanes::{Path, LANES};
+use crate::trig::lanes::{Lane, Path, LANES};
 use crate::watch::Watch;
 
 /// Rows per parallel task.
@@ -35,28 +46,33 @@ pub struct Ensemble {
     pub omega: Vec<f64>,
     pub p: Vec<f64>,
     pub energy_error: Vec<f64>,
-    /// Steps of every row (the grid's: the same for all).
-    pub steps: u64,
+    /// Accepted steps of each row (rk4: the grid's, the same for all).
+    pub steps: Vec<u64>,
     /// The first flip of each row (+inf: none by `t_end`).
     pub first_flip: Vec<f64>,
 }
 
-/// Whether an ensemble of `chain` run with `method` goes through the lanes: an undriven chain
-/// (the caller passes no torque; losses and a cart allowed) on rk4's Lagrangian form, unless `MULTIPENDULUM_LANES`
-/// asks for the per-trajectory route. `None`: the per-trajectory route.
-pub fn route(chain: &Chain, method: Method) -> Result<Option<Path>> {
-    if method != Method::Rk4 {
+/// Whether an ensemble run with `method` goes through the lanes: an undriven chain (the caller
+/// passes no torque; losses and a cart allowed) on rk4's or dop853's Lagrangian form, unless
+/// `MULTIPENDULUM_LANES` asks for the per-trajectory route. `None`: the per-trajectory route.
+pub fn route(method: Method) -> Result<Option<Path>> {
+    if !matches!(method, Method::Rk4 | Method::Dop853) {
         return Ok(None);
     }
     crate::run::bank::requested()
 }
 
-/// The ensemble of the rows of `theta0`, `omega0` (flat, `(B, N)`) by rk4 at step `dt` to
-/// `t_end` in lanes on `path` (see [`route`]); inputs are checked as a batch `simulate` checks
-/// them, with the same messages. `watch` counts rows done and stops the work between steps.
-pub fn ensemble(chain: &Chain, theta0: &[f64], omega0: &[f64], t_end: f64, dt: f64, path: Path, watch: &Watch) -> Result<Ensemble> {
+/// The ensemble of the rows of `theta0`, `omega0` (flat, `(B, N)`) to `t_end` in lanes on `path`
+/// (see [`route`]) with `settings`' method, `dt` (rk4's step; dop853's first step, or `None`
+/// for its own guess), tolerances and `max_steps`; inputs are checked as a batch `simulate`
+/// checks them, with the same messages. `watch` counts rows done and stops the work between
+/// steps.
+pub fn ensemble(chain: &Chain, theta0: &[f64], omega0: &[f64], t_end: f64, settings: &Settings, path: Path, watch: &Watch) -> Result<Ensemble> {
     let n = chain.n();
-    let settings = Settings { method: Method::Rk4, dt: Some(dt), t_eval: Some(vec![t_end]), ..Settings::default() };
+    if !matches!(settings.method, Method::Rk4 | Method::Dop853) || !settings.adaptive {
+        return Err(Error::input(format!("an ensemble in lanes runs rk4 or adaptive dop853, not {}", settings.method.name())));
+    }
+    let settings = Settings { t_eval: Some(vec![t_end]), ..settings.clone() };
     let b = crate::run::simulate::batch_size(chain, theta0, omega0)?;
     settings.validate(t_end)?;
     crate::run::simulate::check_fixed_steps(&settings, t_end)?;
@@ -67,92 +83,157 @@ pub fn ensemble(chain: &Chain, theta0: &[f64], omega0: &[f64], t_end: f64, dt: f
             other => other,
         })?;
     }
-    let steps = fixed_steps(t_end, dt);
     let parts: Vec<Ensemble> = theta0
         .par_chunks(n * CHUNK)
         .zip(omega0.par_chunks(n * CHUNK))
         .enumerate()
         .map(|(c, (th, om))| {
             watch.check(0.0)?;
-            let out = run_chunk_on(path, chain, th, om, t_end, dt, steps, c * CHUNK, watch)?;
+            let out = run_chunk_on(path, chain, th, om, t_end, &settings, c * CHUNK, watch)?;
             watch.add_units((th.len() / n) as u64);
             Ok(out)
         })
         .collect::<Result<_>>()?;
-    let mut all = Ensemble { theta: Vec::new(), omega: Vec::new(), p: Vec::new(), energy_error: Vec::new(), steps, first_flip: Vec::new() };
+    let mut all = Ensemble { theta: Vec::new(), omega: Vec::new(), p: Vec::new(), energy_error: Vec::new(), steps: Vec::new(), first_flip: Vec::new() };
     for part in parts {
         all.theta.extend(part.theta);
         all.omega.extend(part.omega);
         all.p.extend(part.p);
         all.energy_error.extend(part.energy_error);
+        all.steps.extend(part.steps);
         all.first_flip.extend(part.first_flip);
     }
     Ok(all)
 }
 
 #[allow(clippy::too_many_arguments)]
-fn run_chunk_on(path: Path, chain: &Chain, th: &[f64], om: &[f64], t_end: f64, dt: f64, steps: u64, first: usize, watch: &Watch) -> Result<Ensemble> {
+fn run_chunk_on(path: Path, chain: &Chain, th: &[f64], om: &[f64], t_end: f64, settings: &Settings, first: usize, watch: &Watch) -> Result<Ensemble> {
     match path {
         // SAFETY: the path was checked available when chosen (`bank::requested`).
         #[cfg(target_arch = "x86_64")]
-        Path::Avx512 => unsafe { run_chunk_avx512(chain, th, om, t_end, dt, steps, first, watch) },
+        Path::Avx512 => unsafe { run_chunk_avx512(chain, th, om, t_end, settings, first, watch) },
         #[cfg(target_arch = "x86_64")]
-        Path::Avx2 => unsafe { run_chunk_avx2(chain, th, om, t_end, dt, steps, first, watch) },
-        _ => run_chunk(chain, th, om, t_end, dt, steps, first, watch),
+        Path::Avx2 => unsafe { run_chunk_avx2(chain, th, om, t_end, settings, first, watch) },
+        _ => run_chunk(chain, th, om, t_end, settings, first, watch),
     }
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,fma")]
 #[allow(clippy::too_many_arguments)]
-unsafe fn run_chunk_avx512(chain: &Chain, th: &[f64], om: &[f64], t_end: f64, dt: f64, steps: u64, first: usize, watch: &Watch) -> Result<Ensemble> {
-    run_chunk(chain, th, om, t_end, dt, steps, first, watch)
+unsafe fn run_chunk_avx512(chain: &Chain, th: &[f64], om: &[f64], t_end: f64, settings: &Settings, first: usize, watch: &Watch) -> Result<Ensemble> {
+    run_chunk(chain, th, om, t_end, settings, first, watch)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 #[allow(clippy::too_many_arguments)]
-unsafe fn run_chunk_avx2(chain: &Chain, th: &[f64], om: &[f64], t_end: f64, dt: f64, steps: u64, first: usize, watch: &Watch) -> Result<Ensemble> {
-    run_chunk(chain, th, om, t_end, dt, steps, first, watch)
+unsafe fn run_chunk_avx2(chain: &Chain, th: &[f64], om: &[f64], t_end: f64, settings: &Settings, first: usize, watch: &Watch) -> Result<Ensemble> {
+    run_chunk(chain, th, om, t_end, settings, first, watch)
 }
 
-/// The rows of one chunk (`first`: the index of its first row in the batch, for messages), a
-/// group of eight lanes at a time.
+/// The rows of one chunk (`first`: the index of its first row in the batch, for messages).
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn run_chunk(chain: &Chain, th: &[f64], om: &[f64], t_end: f64, dt: f64, steps: u64, first: usize, watch: &Watch) -> Result<Ensemble> {
-    let n = chain.n();
-    let rows = th.len() / n;
-    let lanes = |k| vec![[0.0; LANES]; k];
-    // A chain on a cart carries the cart's x and v (from rest at the origin) after its angles
-    // and rates; a lossy chain, or one on a cart, the losses' work (-D) as one more lane, for its
-    // energy balance.
-    let cart = chain.cart().is_some();
-    let row = 2 * n + 2 * usize::from(cart);
-    let m = row + usize::from(cart || chain.lossy_joints());
-    let (mut y, mut y0, tau) = (lanes(m), lanes(m), lanes(n));
-    let mut rk = Rk4Lanes::with_dim(n, m);
-    let (mut ws, mut scratch) = (Workspace::new(n), vec![0.0; n]);
+fn run_chunk(chain: &Chain, th: &[f64], om: &[f64], t_end: f64, settings: &Settings, first: usize, watch: &Watch) -> Result<Ensemble> {
+    let (n, rows) = (chain.n(), th.len() / chain.n());
     let mut out = Ensemble {
         theta: vec![0.0; rows * n],
         omega: vec![0.0; rows * n],
         p: vec![0.0; rows * n],
         energy_error: vec![0.0; rows],
-        steps,
+        steps: vec![0; rows],
         first_flip: vec![f64::INFINITY; rows],
     };
-    for g in 0..rows.div_ceil(LANES) {
-        let (lo, count) = (g * LANES, LANES.min(rows - g * LANES));
+    let mut rows = Rows { chain, th, om, first, out: &mut out, ws: Workspace::new(n), scratch: vec![0.0; n] };
+    match settings.method {
+        Method::Dop853 => dop853_rows(&mut rows, t_end, settings, watch)?,
+        _ => rk4_rows(&mut rows, t_end, settings.dt.unwrap_or(f64::NAN), watch)?,
+    }
+    Ok(out)
+}
+
+/// A chunk's rows and what the ensemble keeps of them.
+struct Rows<'a> {
+    chain: &'a Chain,
+    th: &'a [f64],
+    om: &'a [f64],
+    /// The index of the chunk's first row in the batch (for messages).
+    first: usize,
+    out: &'a mut Ensemble,
+    ws: Workspace,
+    scratch: Vec<f64>,
+}
+
+impl Rows<'_> {
+    /// Row `r`'s initial state into lane `j` of `y` (the cart at rest at the origin, no work).
+    #[inline(always)]
+    fn load(&self, r: usize, y: &mut [Lane], j: usize) {
+        let n = self.chain.n();
+        for lane in y.iter_mut() {
+            lane[j] = 0.0;
+        }
+        for a in 0..n {
+            y[a][j] = self.th[n * r + a];
+            y[n + a][j] = self.om[n * r + a];
+        }
+    }
+
+    /// An integration error of row `r` (its index in the batch named).
+    fn error(&self, r: usize, t: f64, reason: &str) -> Error {
+        Error::integration(t, format!("trajectory {}: {reason}", self.first + r))
+    }
+
+    /// Row `r`'s final state (lane `j` of `y`) and its reductions: the lab frame's momenta and
+    /// energy error (with the losses' work, the lane after the mechanical ones if any).
+    fn finish(&mut self, r: usize, y: &[Lane], j: usize, steps: u64) {
+        let chain = self.chain;
+        let n = chain.n();
+        let cart = chain.cart().is_some();
+        let row = 2 * n + 2 * usize::from(cart);
+        let (th0, om0) = (&self.th[n * r..n * (r + 1)], &self.om[n * r..n * (r + 1)]);
+        let kinetic0 = chain.kinetic_energy(th0, om0, &mut self.scratch, &mut self.ws);
+        let mut balance = EnergyBalance::new(chain, kinetic0, chain.potential_energy(th0));
+        let out = &mut *self.out;
+        let (theta, omega) = (&mut out.theta[n * r..n * (r + 1)], &mut out.omega[n * r..n * (r + 1)]);
+        for a in 0..n {
+            theta[a] = y[a][j];
+            omega[a] = y[n + a][j];
+        }
+        // The lab frame's kinetic energy and the momenta with the cart's velocity.
+        let v = if cart { y[2 * n + 1][j] } else { 0.0 };
+        let kinetic = chain.kinetic_energy_moving(theta, omega, [v, 0.0], &mut self.scratch, &mut self.ws);
+        let work = y.get(row).map_or(0.0, |w| w[j]);
+        out.energy_error[r] = balance.observe(kinetic, kinetic + chain.potential_energy(theta), work);
+        chain.momenta_general(theta, omega, v, &mut out.p[n * r..n * (r + 1)], &mut self.ws);
+        out.steps[r] = steps;
+    }
+}
+
+/// rk4 on the driver's grid, a group of eight rows at a time.
+#[inline(always)]
+fn rk4_rows(rows: &mut Rows, t_end: f64, dt: f64, watch: &Watch) -> Result<()> {
+    let chain = rows.chain;
+    let n = chain.n();
+    let count_all = rows.th.len() / n;
+    let lanes = |k| vec![[0.0; LANES]; k];
+    // A chain on a cart carries the cart's x and v (from rest at the origin) after its angles
+    // and rates; a lossy chain, or one on a cart, the losses' work (-D) as one more lane, for its
+    // energy balance.
+    let cart = chain.cart().is_some();
+    let m = 2 * n + 2 * usize::from(cart) + usize::from(cart || chain.lossy_joints());
+    let (mut y, mut y0, tau) = (lanes(m), lanes(m), lanes(n));
+    let mut rk = Rk4Lanes::with_dim(n, m);
+    let steps = fixed_steps(t_end, dt);
+    for g in 0..count_all.div_ceil(LANES) {
+        let (lo, count) = (g * LANES, LANES.min(count_all - g * LANES));
         let mut active = [0.0; LANES];
         // Unused lanes stay at rest (finite) and inactive.
         for m in y.iter_mut() {
             *m = [0.0; LANES];
         }
         for j in 0..count {
-            for a in 0..n {
-                y[a][j] = th[n * (lo + j) + a];
-                y[n + a][j] = om[n * (lo + j) + a];
-            }
+            rows.load(lo + j, &mut y, j);
             active[j] = 1.0;
         }
         // Whether the lane's max |theta| was below pi at the start of the step (the event's
@@ -176,11 +257,10 @@ fn run_chunk(chain: &Chain, th: &[f64], om: &[f64], t_end: f64, dt: f64, steps: 
             };
             let nonfinite = stepped.map_err(|(stage, bad)| {
                 let j = (0..LANES).find(|&j| bad.lanes[j]).unwrap_or(0);
-                let at = t + [0.0, 0.5, 0.5, 1.0][stage] * h;
-                Error::integration(at, format!("trajectory {}: {}", first + lo + j, bad.link.reason()))
+                rows.error(lo + j, t + [0.0, 0.5, 0.5, 1.0][stage] * h, &bad.link.reason())
             })?;
             if let Some(j) = (0..count).find(|&j| nonfinite[j]) {
-                return Err(Error::integration(t + h, format!("trajectory {}: {NON_FINITE}", first + lo + j)));
+                return Err(rows.error(lo + j, t + h, NON_FINITE));
             }
             for j in 0..count {
                 let now_below = (0..n).all(|a| y[a][j].abs() < PI);
@@ -190,31 +270,154 @@ fn run_chunk(chain: &Chain, th: &[f64], om: &[f64], t_end: f64, dt: f64, steps: 
                         .filter(|&a| y[a][j].abs() >= PI)
                         .map(|a| flip_time(t, h, (y0[a][j], y0[n + a][j]), (y[a][j], y[n + a][j])))
                         .fold(f64::INFINITY, f64::min);
-                    out.first_flip[lo + j] = at;
+                    rows.out.first_flip[lo + j] = at;
                     found[j] = true;
                 }
                 below[j] = now_below;
             }
         }
         for j in 0..count {
-            let r = lo + j;
-            let (th0, om0) = (&th[n * r..n * (r + 1)], &om[n * r..n * (r + 1)]);
-            let kinetic0 = chain.kinetic_energy(th0, om0, &mut scratch, &mut ws);
-            let mut balance = EnergyBalance::new(chain, kinetic0, chain.potential_energy(th0));
-            let (theta, omega) = (&mut out.theta[n * r..n * (r + 1)], &mut out.omega[n * r..n * (r + 1)]);
-            for a in 0..n {
-                theta[a] = y[a][j];
-                omega[a] = y[n + a][j];
-            }
-            // The lab frame's kinetic energy and the momenta with the cart's velocity.
-            let v = if cart { y[2 * n + 1][j] } else { 0.0 };
-            let kinetic = chain.kinetic_energy_moving(theta, omega, [v, 0.0], &mut scratch, &mut ws);
-            let work = y.get(row).map_or(0.0, |w| w[j]);
-            out.energy_error[r] = balance.observe(kinetic, kinetic + chain.potential_energy(theta), work);
-            chain.momenta_general(theta, omega, v, &mut out.p[n * r..n * (r + 1)], &mut ws);
+            rows.finish(lo + j, &y, j, steps);
         }
     }
-    Ok(out)
+    Ok(())
+}
+
+/// dop853 with a step per lane, as the run driver's controlled steps (the same first step,
+/// controller, `max_steps` and landing on `t_end`); a lane whose row is done takes the chunk's
+/// next row. The first flip is the per-trajectory route's `Flip` event, located on the step's
+/// 7th-order interpolant by the same root finder ([`Tracker`]).
+#[inline(always)]
+fn dop853_rows(rows: &mut Rows, t_end: f64, settings: &Settings, watch: &Watch) -> Result<()> {
+    let chain = rows.chain;
+    let n = chain.n();
+    let count = rows.th.len() / n;
+    let lanes = |k| vec![[0.0; LANES]; k];
+    // The per-trajectory run's state: the cart's x and v after the angles and rates, then the
+    // losses' work (it is -D there: D; the error norm sees only its size), all controlled.
+    let m = 2 * n + 2 * usize::from(chain.cart().is_some()) + usize::from(chain.dissipative());
+    let mut dp = Dop853Lanes::new(n, m, m, settings.rtol, settings.atol);
+    let (mut y, mut y_new, tau, mut q) = (lanes(m), lanes(m), lanes(n), lanes(n));
+    let zero = [0.0; LANES];
+    let specs = [EventSpec { condition: Condition::Flip(None), direction: 1, terminal: false }];
+    let tracker = || Tracker::new(&specs, chain, Form::Lagrangian);
+    let mut trackers: Vec<Tracker> = (0..LANES).map(|_| tracker()).collect();
+    // Per lane: its row, time, next step, and the driver's counters.
+    let mut slot: [Option<usize>; LANES] = [None; LANES];
+    let (mut t, mut h) = ([0.0; LANES], [0.0; LANES]);
+    let (mut steps, mut rejected, mut after_rejection, mut found) = ([0u64; LANES], [0u64; LANES], [false; LANES], [false; LANES]);
+    let mut next = 0;
+    let mut state = vec![0.0; m];
+    let lane = |y: &[Lane], j: usize, out: &mut [f64]| {
+        for (o, v) in out.iter_mut().zip(y) {
+            *o = v[j];
+        }
+    };
+    loop {
+        let mut fresh = [false; LANES];
+        for j in 0..LANES {
+            if slot[j].is_none() && next < count {
+                rows.load(next, &mut y, j);
+                (slot[j], fresh[j], next) = (Some(next), true, next + 1);
+                (t[j], steps[j], rejected[j], after_rejection[j], found[j]) = (0.0, 0, 0, false, false);
+                trackers[j] = tracker();
+                lane(&y, j, &mut state);
+                trackers[j].start(0.0, &state)?;
+            }
+        }
+        let mut sys = ChainLanes { chain, tau: &tau, force: &zero, q: &mut q };
+        if fresh.iter().any(|&f| f) {
+            let first = dp.start(&mut sys, &t, &y, &fresh, &[t_end; LANES], settings.dt).map_err(|(j, why)| {
+                let r = slot[j].unwrap_or(0);
+                match why {
+                    StartFailure::Singular(link) => rows.error(r, 0.0, &link.reason()),
+                    StartFailure::NonFinite => rows.error(r, 0.0, NON_FINITE),
+                }
+            })?;
+            for j in (0..LANES).filter(|&j| fresh[j]) {
+                h[j] = first[j];
+            }
+        }
+        let running = slot.map(|s| s.is_some());
+        if !running.iter().any(|&r| r) {
+            return Ok(());
+        }
+        // Every step: a relaxed load against eight lanes' step.
+        watch.check((0..LANES).filter(|&j| running[j]).map(|j| t[j]).fold(f64::INFINITY, f64::min))?;
+        let (mut last, mut h_try) = ([false; LANES], [0.0; LANES]);
+        for j in (0..LANES).filter(|&j| running[j]) {
+            let r = slot[j].unwrap_or(0);
+            if steps[j] + rejected[j] >= settings.max_steps {
+                return Err(rows.error(r, t[j], &max_steps_reached(settings.max_steps)));
+            }
+            if h[j] < min_step(t[j]) {
+                return Err(rows.error(r, t[j], UNDERFLOW));
+            }
+            last[j] = t[j] + h[j] >= t_end;
+            h_try[j] = if last[j] { t_end - t[j] } else { h[j] };
+        }
+        let active = running.map(|r| if r { 1.0 } else { 0.0 });
+        let err = dp.trial(&mut sys, &t, &y, &h_try, &mut y_new, &active);
+        let (mut accepted, mut t_new) = ([false; LANES], t);
+        for j in (0..LANES).filter(|&j| running[j]) {
+            match Controller::DOP853.decide(err[j], h_try[j], after_rejection[j]) {
+                Decision::Reject { h_next } => {
+                    rejected[j] += 1;
+                    after_rejection[j] = true;
+                    h[j] = h_next;
+                }
+                Decision::Accept { h_next } => {
+                    if !y_new.iter().all(|v| v[j].is_finite()) {
+                        return Err(rows.error(slot[j].unwrap_or(0), t[j] + h_try[j], NON_FINITE));
+                    }
+                    // A step shortened to land on the end keeps the proposal it was cut from.
+                    if !last[j] {
+                        h[j] = h_next;
+                    }
+                    after_rejection[j] = false;
+                    accepted[j] = true;
+                    steps[j] += 1;
+                    t_new[j] = if last[j] { t_end } else { t[j] + h_try[j] };
+                }
+            }
+        }
+        // The rows' first flips: a crossing in the step is located on its interpolant.
+        let mut crossed = [false; LANES];
+        for j in (0..LANES).filter(|&j| accepted[j] && !found[j]) {
+            lane(&y_new, j, &mut state);
+            crossed[j] = trackers[j].detect(t_new[j], &state)?;
+            if !crossed[j] {
+                trackers[j].accept();
+            }
+        }
+        if crossed.iter().any(|&c| c) {
+            dp.dense(&mut sys, &t, &y, &y_new, &h_try, &crossed).map_err(|s| {
+                let j = (0..LANES).find(|&j| s.lanes[j]).unwrap_or(0);
+                rows.error(slot[j].unwrap_or(0), t[j], &s.link.reason())
+            })?;
+            for j in (0..LANES).filter(|&j| crossed[j]) {
+                trackers[j].locate(t[j], h_try[j], |x, out| {
+                    dp.interpolate(j, &y, x, out);
+                    Ok(())
+                }, m)?;
+                let r = slot[j].unwrap_or(0);
+                rows.out.first_flip[r] = trackers[j].hits.first().map_or(f64::INFINITY, |hit| hit.t);
+                found[j] = true;
+            }
+        }
+        dp.accept(&accepted);
+        for (yv, nv) in y.iter_mut().zip(&y_new) {
+            for i in 0..LANES {
+                yv[i] = if accepted[i] { nv[i] } else { yv[i] };
+            }
+        }
+        t = t_new;
+        for j in (0..LANES).filter(|&j| accepted[j] && last[j]) {
+            if let Some(r) = slot[j].take() {
+                rows.finish(r, &y, j, steps[j]);
+            }
+        }
+    }
 }
 
 #[cfg(test)]
@@ -242,6 +445,10 @@ mod tests {
         ]
     }
 
+    fn rk4(dt: f64) -> Settings {
+        Settings { method: Method::Rk4, dt: Some(dt), ..Settings::default() }
+    }
+
     fn rows(n: usize, b: usize) -> (Vec<f64>, Vec<f64>) {
         let th = (0..n * b).map(|k| (k as f64 * 0.77).sin() * 2.6).collect();
         let om = (0..n * b).map(|k| (k as f64 * 1.31).cos() * 5.0).collect();
@@ -254,7 +461,7 @@ mod tests {
             let n = chain.n();
             let (th, om) = rows(n, 37);
             let (t_end, dt) = (0.834, 0.01); // the last step is shortened
-            let got = ensemble(&chain, &th, &om, t_end, dt, Path::best(), &Watch::new()).unwrap();
+            let got = ensemble(&chain, &th, &om, t_end, &rk4(dt), Path::best(), &Watch::new()).unwrap();
             let settings = Settings {
                 method: Method::Rk4,
                 dt: Some(dt),
@@ -263,7 +470,7 @@ mod tests {
                 ..Settings::default()
             };
             let want = simulate_batch(&chain, &th, &om, t_end, &settings, &Builtin::None, &Watch::new()).unwrap();
-            assert_eq!(got.steps, 84);
+            assert_eq!(got.steps, vec![84; 37]);
             let mut flips = 0;
             for (i, tr) in want.iter().enumerate() {
                 assert_eq!(tr.t, vec![t_end]);
@@ -275,7 +482,7 @@ mod tests {
                     assert!(close(got.omega[n * i + a], tr.omega[a]), "row {i}: {} vs {}", got.omega[n * i + a], tr.omega[a]);
                     assert!(close(got.p[n * i + a], tr.p[a]), "row {i}");
                 }
-                assert_eq!(tr.stats.steps, got.steps);
+                assert_eq!(tr.stats.steps, got.steps[i]);
                 let first = tr.events.first().map_or(f64::INFINITY, |h| h.1);
                 assert_eq!(first.is_finite(), got.first_flip[i].is_finite(), "row {i}");
                 if first.is_finite() {
@@ -292,11 +499,11 @@ mod tests {
     fn every_path_gives_the_same_bits_and_a_row_its_own_whatever_its_neighbours() {
         let chain = &chains()[1];
         let (th, om) = rows(3, 300);
-        let reference = ensemble(chain, &th, &om, 3.0, 0.01, Path::Portable, &Watch::new()).unwrap();
+        let reference = ensemble(chain, &th, &om, 3.0, &rk4(0.01), Path::Portable, &Watch::new()).unwrap();
         for path in Path::ALL.into_iter().filter(|p| p.available()) {
-            assert_eq!(ensemble(chain, &th, &om, 3.0, 0.01, path, &Watch::new()).unwrap(), reference, "{path:?}");
+            assert_eq!(ensemble(chain, &th, &om, 3.0, &rk4(0.01), path, &Watch::new()).unwrap(), reference, "{path:?}");
         }
-        let one = ensemble(chain, &th[3 * 261..3 * 262], &om[3 * 261..3 * 262], 3.0, 0.01, Path::best(), &Watch::new()).unwrap();
+        let one = ensemble(chain, &th[3 * 261..3 * 262], &om[3 * 261..3 * 262], 3.0, &rk4(0.01), Path::best(), &Watch::new()).unwrap();
         assert_eq!(one.theta, reference.theta[3 * 261..3 * 262].to_vec());
         assert_eq!(one.first_flip[0].to_bits(), reference.first_flip[261].to_bits());
     }
@@ -304,11 +511,112 @@ mod tests {
     #[test]
     fn bad_rows_and_blow_ups_name_their_trajectory() {
         let chain = &chains()[0];
-        let e = ensemble(chain, &[0.1, 0.2, 0.3, f64::NAN], &[0.0; 4], 1.0, 0.01, Path::best(), &Watch::new()).unwrap_err();
+        let e = ensemble(chain, &[0.1, 0.2, 0.3, f64::NAN], &[0.0; 4], 1.0, &rk4(0.01), Path::best(), &Watch::new()).unwrap_err();
         assert_eq!(e.to_string(), "trajectory 1: theta0[1] must be finite, got NaN");
-        let e = ensemble(chain, &[0.1; 4], &[0.0, 0.0, 1e200, 0.0], 1.0, 0.01, Path::best(), &Watch::new()).unwrap_err();
+        let e = ensemble(chain, &[0.1; 4], &[0.0, 0.0, 1e200, 0.0], 1.0, &rk4(0.01), Path::best(), &Watch::new()).unwrap_err();
         assert!(matches!(e, Error::Integration { .. }) && e.to_string().contains("trajectory 1:"), "{e}");
-        let e = ensemble(chain, &[0.1; 4], &[0.0; 4], 1.0, -0.01, Path::best(), &Watch::new()).unwrap_err();
+        let e = ensemble(chain, &[0.1; 4], &[0.0; 4], 1.0, &rk4(-0.01), Path::best(), &Watch::new()).unwrap_err();
         assert_eq!(e.to_string(), "dt must be > 0 and finite, got -0.01");
+    }
+
+    /// The per-trajectory route of dop853: a batch `simulate` with the ensemble's output and
+    /// its flip event.
+    fn per_trajectory(chain: &Chain, th: &[f64], om: &[f64], t_end: f64, settings: &Settings) -> Vec<crate::run::Trajectory> {
+        let settings = Settings {
+            t_eval: Some(vec![t_end]),
+            events: vec![EventSpec { condition: Condition::Flip(None), direction: 1, terminal: false }],
+            ..settings.clone()
+        };
+        simulate_batch(chain, th, om, t_end, &settings, &Builtin::None, &Watch::new()).unwrap()
+    }
+
+    #[test]
+    fn dop853_lanes_take_the_per_trajectory_steps_and_agree_with_it() {
+        let settings = Settings::default();
+        assert_eq!(settings.method, Method::Dop853);
+        let tight = Settings { rtol: 1e-13, atol: 1e-15, ..Settings::default() };
+        for (c, chain) in chains().into_iter().enumerate() {
+            // Chain 4's friction is regularised over 1e-3 rad/s: stiff where a joint stops,
+            // where the controller's choices are sensitive to round-off.
+            let stiff = c == 4;
+            let n = chain.n();
+            let (th, om) = rows(n, 29);
+            let t_end = 0.834;
+            let got = ensemble(&chain, &th, &om, t_end, &settings, Path::best(), &Watch::new()).unwrap();
+            let want = per_trajectory(&chain, &th, &om, t_end, &settings);
+            let exact = per_trajectory(&chain, &th, &om, t_end, &tight);
+            let (mut flips, mut steps, mut log_ratio) = (0, (0, 0), 0.0);
+            for (i, (tr, ex)) in want.iter().zip(&exact).enumerate() {
+                // As accurate as the run alone, against a run 1000 times tighter: each row to
+                // the tolerance's scale, and as accurate on (geometric) average.
+                let off = |row: &[f64], o: usize| (0..n).map(|a| (row[o + a] - ex.theta[a]).abs()).fold(0.0, f64::max);
+                let (lanes_off, alone_off) = (off(&got.theta, n * i), off(&tr.theta, 0));
+                assert!(lanes_off < 1e-7, "row {i} of chain {c}: {lanes_off:e} vs {alone_off:e}");
+                log_ratio += (lanes_off.max(1e-15) / alone_off.max(1e-15)).ln() / want.len() as f64;
+                // Each lane takes its own steps as the run alone does, but their sizes are not
+                // the same bits: the error estimate is a sum of stages that cancel to round-off
+                // (its relative round-off reaches 1e-6), so the two routes' steps drift apart by
+                // round-off amplified, and may land on t_end with a step more or less. They
+                // agree to the tolerance's scale, not to round-off.
+                steps.0 += got.steps[i];
+                steps.1 += tr.stats.steps;
+                let first = tr.events.first().map_or(f64::INFINITY, |h| h.1);
+                assert_eq!(first.is_finite(), got.first_flip[i].is_finite(), "row {i}");
+                flips += usize::from(first.is_finite());
+                assert!(got.energy_error[i] < 1e-8, "row {i}: {}", got.energy_error[i]);
+                if stiff {
+                    continue;
+                }
+                assert!(got.steps[i].abs_diff(tr.stats.steps) <= 1, "row {i} of chain {c}: {} vs {}", got.steps[i], tr.stats.steps);
+                let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * (1.0 + b.abs());
+                for a in 0..n {
+                    assert!(close(got.theta[n * i + a], tr.theta[a]), "row {i}: {} vs {}", got.theta[n * i + a], tr.theta[a]);
+                    assert!(close(got.omega[n * i + a], tr.omega[a]), "row {i}: {} vs {}", got.omega[n * i + a], tr.omega[a]);
+                    assert!(close(got.p[n * i + a], tr.p[a]), "row {i}");
+                }
+                if first.is_finite() {
+                    assert!((first - got.first_flip[i]).abs() < 1e-9, "row {i}: {first} vs {}", got.first_flip[i]);
+                }
+                assert!((got.energy_error[i] - tr.stats.energy_error).abs() < 1e-10, "row {i}");
+            }
+            assert!(flips > 3, "{flips}");
+            assert!(log_ratio.exp() < 2.0, "chain {c}: lanes' errors {} times the run's", log_ratio.exp());
+            let slack = if stiff { steps.1 / 20 } else { 3 };
+            assert!(steps.0.abs_diff(steps.1) <= slack, "chain {c}: {steps:?}");
+        }
+    }
+
+    #[test]
+    fn dop853_lanes_give_every_path_and_neighbourhood_the_same_bits_and_honour_dt_and_max_steps() {
+        let chain = &chains()[4];
+        let (th, om) = rows(3, 301);
+        let settings = Settings { rtol: 1e-8, atol: 1e-10, ..Settings::default() };
+        let reference = ensemble(chain, &th, &om, 2.0, &settings, Path::Portable, &Watch::new()).unwrap();
+        assert!(reference.steps.iter().min() < reference.steps.iter().max(), "rows take their own steps");
+        for path in Path::ALL.into_iter().filter(|p| p.available()) {
+            assert_eq!(ensemble(chain, &th, &om, 2.0, &settings, path, &Watch::new()).unwrap(), reference, "{path:?}");
+        }
+        // Alone, a row meets another lane's history (and is no longer refilled mid-group).
+        let one = ensemble(chain, &th[3 * 261..3 * 262], &om[3 * 261..3 * 262], 2.0, &settings, Path::best(), &Watch::new()).unwrap();
+        assert_eq!(one.theta, reference.theta[3 * 261..3 * 262].to_vec());
+        assert_eq!(one.steps[0], reference.steps[261]);
+        // A first step of dt, and max_steps, as the per-trajectory run takes them.
+        let short = Settings { dt: Some(1e-4), max_steps: 40, ..settings.clone() };
+        let e = ensemble(chain, &th[..9], &om[..9], 2.0, &short, Path::best(), &Watch::new()).unwrap_err();
+        let Error::Integration { t, reason } = &e else { panic!("{e}") };
+        let (row, rest) = reason.strip_prefix("trajectory ").and_then(|r| r.split_once(": ")).unwrap();
+        assert_eq!(rest, "reached max_steps = 40 before t_end");
+        let row: usize = row.parse().unwrap();
+        let alone = Settings { t_eval: Some(vec![2.0]), ..short.clone() };
+        let Error::Integration { t: at, .. } = crate::run::simulate(chain, &th[3 * row..3 * row + 3], &om[3 * row..3 * row + 3], 2.0, &alone, Builtin::None, &mut |_| Ok(())).unwrap_err() else { panic!() };
+        assert!((t - at).abs() < 1e-6, "{t} vs {at}");
+        // (On a chain without the friction's stiffness, where the routes' steps agree.)
+        let (chain, small) = (&chains()[1], Settings { dt: Some(1e-4), ..settings.clone() });
+        let got = ensemble(chain, &th[..9], &om[..9], 0.5, &small, Path::best(), &Watch::new()).unwrap();
+        let want = per_trajectory(chain, &th[..9], &om[..9], 0.5, &small);
+        for (i, tr) in want.iter().enumerate() {
+            assert!(got.steps[i].abs_diff(tr.stats.steps) <= 1, "row {i}");
+            assert!((got.theta[3 * i] - tr.theta[0]).abs() < 1e-9, "row {i}");
+        }
     }
 }

@@ -13,7 +13,7 @@ use crate::error::{Error, Result};
 
 pub const FACTS: Facts = Facts { order: 8, symplectic: false, implicit: false, adaptive: true };
 
-const STAGES: usize = 12;
+pub(super) const STAGES: usize = 12;
 
 #[derive(Debug, Clone)]
 pub struct Dop853 {
@@ -88,7 +88,7 @@ impl Dop853 {
         let f0 = self.k[..d].to_vec();
         let d0 = rms(&|m| y[m] / scale(m));
         let d1 = rms(&|m| f0[m] / scale(m));
-        let mut h0 = if d0 < 1e-5 || d1 < 1e-5 { 1e-6 } else { 0.01 * d0 / d1 }.min(span);
+        let mut h0 = first_guess(d0, d1, span);
         let mut f1 = vec![0.0; d];
         // An explicit Euler trial that leaves the finite (or non-singular) states says the
         // guess is far too large: shrink it, as a rejected step would be.
@@ -104,12 +104,7 @@ impl Dop853 {
             }
         }
         let d2 = rms(&|m| (f1[m] - f0[m]) / scale(m)) / h0;
-        let h1 = if d1 <= 1e-15 && d2 <= 1e-15 {
-            (h0 * 1e-3).max(1e-6)
-        } else {
-            (0.01 / d1.max(d2)).powf(1.0 / 8.0)
-        };
-        Ok((100.0 * h0).min(h1).min(span))
+        Ok(first_step_from(h0, d1, d2, span))
     }
 
     /// Try one step of size `h` from `(t, y)` into `y_new`; the combined error norm (`inf` when a
@@ -160,7 +155,7 @@ impl Dop853 {
             e5 += (a5 / scale).powi(2);
             e3 += (a3 / scale).powi(2);
         }
-        Ok(if e5 == 0.0 && e3 == 0.0 { 0.0 } else { h.abs() * e5 / ((e5 + 0.01 * e3) * e as f64).sqrt() })
+        Ok(combined_error(h, e5, e3, e))
     }
 
     /// The 7th-order interpolant between `(t, y)` and `(t + h, y_new)` of the last accepted
@@ -181,17 +176,9 @@ impl Dop853 {
                 sys.rhs(t + C[s] * h, &self.tmp, &mut rest[..d])?;
             }
             for m in 0..d {
-                let dy = y_new[m] - y[m];
-                let (f_old, f_new) = (self.k[m], self.k[STAGES * d + m]);
-                self.dense[m] = dy;
-                self.dense[d + m] = h * f_old - dy;
-                self.dense[2 * d + m] = 2.0 * dy - h * (f_new + f_old);
-                for r in 0..4 {
-                    let mut acc = 0.0;
-                    for j in 0..16 {
-                        acc += D[r][j] * self.k[j * d + m];
-                    }
-                    self.dense[(3 + r) * d + m] = h * acc;
+                let rows = interpolant(y[m], y_new[m], h, |j| self.k[j * d + m]);
+                for (r, v) in rows.into_iter().enumerate() {
+                    self.dense[r * d + m] = v;
                 }
             }
         }
@@ -202,14 +189,61 @@ impl Dop853 {
     fn interpolate_at(&self, y_old: &[f64], x: f64, out: &mut [f64]) {
         let d = self.dim;
         for m in 0..d {
-            let mut acc = 0.0;
-            for (i, r) in (0..7).rev().enumerate() {
-                acc += self.dense[r * d + m];
-                acc *= if i % 2 == 0 { x } else { 1.0 - x };
-            }
-            out[m] = y_old[m] + acc;
+            out[m] = y_old[m] + increment(|r| self.dense[r * d + m], x);
         }
     }
+}
+
+/// DOP853's combined error norm of a step `h` from the sums of the squared scaled 5th- and
+/// 3rd-order estimates over its `count` controlled components (SciPy's `_estimate_error_norm`).
+#[inline]
+pub(super) fn combined_error(h: f64, e5: f64, e3: f64, count: usize) -> f64 {
+    if e5 == 0.0 && e3 == 0.0 { 0.0 } else { h.abs() * e5 / ((e5 + 0.01 * e3) * count as f64).sqrt() }
+}
+
+/// Hairer's first trial step from the scaled sizes of the state (`d0`) and its rate (`d1`).
+pub(super) fn first_guess(d0: f64, d1: f64, span: f64) -> f64 {
+    if d0 < 1e-5 || d1 < 1e-5 { 1e-6 } else { 0.01 * d0 / d1 }.min(span)
+}
+
+/// Hairer's first step from the trial `h0` and the scaled sizes of the rate (`d1`) and of its
+/// change over the trial (`d2`).
+pub(super) fn first_step_from(h0: f64, d1: f64, d2: f64, span: f64) -> f64 {
+    let h1 = if d1 <= 1e-15 && d2 <= 1e-15 {
+        (h0 * 1e-3).max(1e-6)
+    } else {
+        (0.01 / d1.max(d2)).powf(1.0 / 8.0)
+    };
+    (100.0 * h0).min(h1).min(span)
+}
+
+/// The 7th-order interpolant's seven coefficients of one component over a step `h` from `y` to
+/// `y_new`, from its 16 stages `k(j)` (12 of the step, the last at `y_new`, 3 more).
+#[inline]
+pub(super) fn interpolant(y: f64, y_new: f64, h: f64, k: impl Fn(usize) -> f64) -> [f64; 7] {
+    let dy = y_new - y;
+    let (f_old, f_new) = (k(0), k(STAGES));
+    let mut rows = [dy, h * f_old - dy, 2.0 * dy - h * (f_new + f_old), 0.0, 0.0, 0.0, 0.0];
+    for r in 0..4 {
+        let mut acc = 0.0;
+        for j in 0..16 {
+            acc += D[r][j] * k(j);
+        }
+        rows[3 + r] = h * acc;
+    }
+    rows
+}
+
+/// The interpolant's increment over the step's start at fraction `x`, from its seven
+/// coefficients `row(r)` of one component.
+#[inline]
+pub(super) fn increment(row: impl Fn(usize) -> f64, x: f64) -> f64 {
+    let mut acc = 0.0;
+    for (i, r) in (0..7).rev().enumerate() {
+        acc += row(r);
+        acc *= if i % 2 == 0 { x } else { 1.0 - x };
+    }
+    acc
 }
 
 impl Integrator for Dop853 {

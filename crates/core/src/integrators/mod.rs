@@ -12,6 +12,7 @@
 pub mod control;
 pub mod dense;
 pub mod dop853;
+pub mod dop853_lanes;
 mod dop853_tableau;
 pub mod gauss;
 pub mod lanes;

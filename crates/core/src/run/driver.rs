@@ -83,8 +83,16 @@ pub fn fixed_steps(t_end: f64, dt: f64) -> u64 {
     ((t_end / dt) * (1.0 - 1e-12)).ceil().max(1.0) as u64
 }
 
+/// Why dop853 stopped when its step became too small to move on.
+pub(crate) const UNDERFLOW: &str = "the step size underflowed (the motion is singular or blew up)";
+
+/// Why dop853 stopped when it ran out of steps.
+pub(crate) fn max_steps_reached(max_steps: u64) -> String {
+    format!("reached max_steps = {max_steps} before t_end")
+}
+
 /// The smallest step dop853 may take at time `t` before the step size counts as underflowed.
-fn min_step(t: f64) -> f64 {
+pub(crate) fn min_step(t: f64) -> f64 {
     10.0 * (t.abs() * f64::EPSILON).max(f64::MIN_POSITIVE)
 }
 
@@ -274,10 +282,10 @@ impl<S: OdeSystem, I: Integrator> Run<S, I> {
         loop {
             let State { t, h, steps, rejected, .. } = self.state;
             if steps + rejected >= self.max_steps {
-                return Err(Error::integration(t, format!("reached max_steps = {} before t_end", self.max_steps)));
+                return Err(Error::integration(t, max_steps_reached(self.max_steps)));
             }
             if h < min_step(t) {
-                return Err(Error::integration(t, "the step size underflowed (the motion is singular or blew up)"));
+                return Err(Error::integration(t, UNDERFLOW));
             }
             let last = t + h >= until;
             let h_try = if last { until - t } else { h };
