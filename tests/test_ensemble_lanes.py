@@ -1,5 +1,5 @@
-"""mp.ensemble in SIMD lanes (issue 14): undriven chains (damping, friction and a cart included)
-run by rk4 or dop853 go through the core's lanes; the per-trajectory route (a batch simulate with
+"""mp.ensemble in SIMD lanes (issue 14): chains (damping, friction and a cart included), undriven
+or driven by built-in torques, run by rk4 or dop853 go through the core's lanes; the per-trajectory route (a batch simulate with
 a non-terminal Flip event, forced with MULTIPENDULUM_LANES=scalar) is the reference they must
 agree with: rk4 to round-off, dop853 (each lane with its own steps) to its tolerance."""
 import numpy as np
@@ -105,9 +105,35 @@ def test_dop853_lanes_meet_the_tolerance_they_are_given():
     assert errors[1e-6] / errors[1e-9] > 30, errors  # tighter tolerance, smaller error
 
 
+@pytest.mark.parametrize("key, kwargs", [
+    (2, dict(method="rk4", dt=0.01, torque=mp.Sinusoid([1.5, -0.7], [3.0, 5.5]))),
+    ("3 on a damped cart", dict(method="rk4", dt=0.01, joint_torque=mp.Table([0.0, 0.3, 0.9], [[0, 1, -2], [1, .5, 0], [2, -1, .3]],
+                                                                                 kind="cubic"))),
+    ("2, damped with friction", dict(torque=[0.3, -0.2])),
+    (3, dict(joint_torque=mp.Sinusoid([2.0, 0.0, 1.0], [4.0, 1.0, 2.0]))),
+])
+def test_driven_lanes_agree_with_the_per_trajectory_route(monkeypatch, key, kwargs):
+    chain = CHAINS[key]
+    n = chain.n
+    rng = np.random.default_rng(n + 20)
+    th0 = rng.uniform(-3.0, 3.0, (30, n))
+    om0 = rng.uniform(-2, 2, (30, n))
+    fast, slow = both_routes(monkeypatch, chain, th0, om0, 0.834, **kwargs)
+    # rk4: round-off grown by chaos (the drive pumps energy in); dop853: its tolerance.
+    tol = 1e-11 if kwargs.get("method") == "rk4" else 1e-8
+    for name in ("theta", "omega", "p"):
+        a, b = getattr(fast, name), getattr(slow, name)
+        assert np.all(np.abs(a - b) <= tol * (1 + np.abs(b))), (name, np.max(np.abs(a - b)))
+    # The energy error is the balance with the torque's work, on both routes.
+    np.testing.assert_allclose(fast.energy_error, slow.energy_error, rtol=0, atol=1e-10)
+    if kwargs.get("method") != "rk4":
+        assert fast.energy_error.max() < 1e-8
+    np.testing.assert_array_equal(np.isfinite(fast.first_flip), np.isfinite(slow.first_flip))
+
+
 @pytest.mark.parametrize("kwargs", [
     dict(method="gauss4", dt=0.01),                                  # another method
-    dict(method="rk4", dt=0.01, torque=mp.Sinusoid(0.3, 1.0)),       # driven
+    dict(method="rk4", dt=0.01, torque=lambda t: [0.3 * np.sin(t), 0.0]),  # a Python function
 ])
 def test_what_the_lanes_do_not_cover_takes_the_per_trajectory_route(monkeypatch, kwargs):
     th0 = np.random.default_rng(3).uniform(-1, 1, (6, 2))

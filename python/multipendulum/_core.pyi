@@ -163,7 +163,8 @@ def certified_flips(chain: Chain, theta0: _F64, omega0: _F64, t_max: float, *, d
                     torque: Optional[Torque] = None, tolerance: Optional[float] = None,
                     progress: Optional[Callable[[float], Any]] = None) -> Tuple[_F64, npt.NDArray[np.bool_], float]: ...
 def ensemble(chain: Chain, theta0: _F64, omega0: _F64, t_end: float, *, method: str, dt: Optional[float] = None,
-             rtol: float, atol: float, progress: Optional[Callable[[float], Any]] = None
+             rtol: float, atol: float, torque: Optional[Torque] = None,
+             progress: Optional[Callable[[float], Any]] = None
              ) -> Optional[Tuple[_F64, _F64, _F64, _F64, npt.NDArray[np.uint64], _F64]]: ...
 def flip_energy_threshold(chain: Chain, link: Optional[int] = None) -> float: ...
 def indicator(chain: Chain, theta0: Sequence[float], omega0: Sequence[float], t_end: float, *, dt: float, name: str,

@@ -440,9 +440,10 @@ def ensemble(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: 
     O(B N steps). Results are identical whatever the number of threads. ``progress`` as for
     :func:`lyapunov`.
 
-    Undriven chains (damping, friction and a cart included), run by ``rk4`` or ``dop853``, go
+    Chains with damping, friction or a cart, undriven or driven by built-in torques (constant,
+    :class:`Sinusoid`, :class:`Table`; not a Python function), run by ``rk4`` or ``dop853``, go
     through SIMD lanes (eight trajectories at a time, several times faster), each trajectory
-    with its own steps under ``dop853``. They do not depend on the CPU's vector width or on the
+    with its own steps under ``dop853``; the energy error is the balance with the torques' work. They do not depend on the CPU's vector width or on the
     other rows, and agree with the per-trajectory route (a batch :func:`simulate` with a
     non-terminal :class:`Flip` event): ``rk4`` to round-off; ``dop853`` to its tolerance, taking
     the same number of steps give or take one (its error estimate cancels to round-off, which
@@ -460,13 +461,14 @@ def ensemble(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: 
     th0, om0 = as_state(theta0, "theta0", chain.n), as_state(omega0, "omega0", chain.n)
     if th0.ndim != 2 or th0.shape != om0.shape:
         raise InputError(f"theta0 and omega0 must both have shape (B, {chain.n}), got {th0.shape} and {om0.shape}")
-    if torque is None and joint_torque is None and isinstance(method, str):
-        # Undriven: the core runs it in SIMD lanes where the chain and method allow (else None).
+    if isinstance(method, str):
+        # The core runs it in SIMD lanes where the method and torque allow (else None).
+        spec, joint = normalise_torque(torque, joint_torque, chain.n)
         _check_progress(progress)
         with reporter(progress, "ensemble") as report:
             lanes = _core.ensemble(chain._c, th0.ravel(), om0.ravel(), t_end, method=method,
                                    dt=None if dt is None else as_float(dt, "dt"), rtol=as_float(rtol, "rtol"),
-                                   atol=as_float(atol, "atol"), progress=report)
+                                   atol=as_float(atol, "atol"), torque=core_torque(spec, joint), progress=report)
         if lanes is not None:
             theta, omega, p, error, steps, first = lanes
             return EnsembleResult(float(t_end), theta.reshape(th0.shape), omega.reshape(th0.shape), p.reshape(th0.shape),

@@ -29,7 +29,7 @@ pub use dynamics::general::Load;
 pub use dynamics::reference;
 pub use dynamics::sensitivity::Input;
 pub use dynamics::system::{ChainSystem, Form, OdeSystem};
-pub use dynamics::torque::{Builtin, Interp, Joint, TorqueSource};
+pub use dynamics::torque::{Builtin, Interp, Joint, Timed, TorqueSource};
 pub use dynamics::{Singular, Workspace};
 pub use error::{Error, Result};
 pub use integrators::{Facts, Method};

@@ -7,7 +7,7 @@ use pyo3::prelude::*;
 use core::Watch;
 
 use crate::chain::PyChain;
-use crate::torque::{builtin_only, PyTorque};
+use crate::torque::{builtin_only, timed, PyTorque};
 use crate::{interruptible, slice, to_py, vec_out};
 
 pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -217,9 +217,9 @@ type EnsembleOut<'py> = (
 
 /// An undriven ensemble in SIMD lanes (`core::chaos::ensemble`): `(theta, omega, p, energy_error,
 /// steps, first_flip)` flat, or None where the core sends it the per-trajectory way (a method
-/// other than rk4 and dop853, or `MULTIPENDULUM_LANES=scalar`).
+/// other than rk4 and dop853, a torque that is a Python function, or `MULTIPENDULUM_LANES=scalar`).
 #[pyfunction]
-#[pyo3(signature = (chain, theta0, omega0, t_end, *, method, dt=None, rtol, atol, progress=None))]
+#[pyo3(signature = (chain, theta0, omega0, t_end, *, method, dt=None, rtol, atol, torque=None, progress=None))]
 #[allow(clippy::too_many_arguments)]
 fn ensemble<'py>(
     py: Python<'py>,
@@ -231,6 +231,7 @@ fn ensemble<'py>(
     dt: Option<f64>,
     rtol: f64,
     atol: f64,
+    torque: Option<PyRef<'py, PyTorque>>,
     progress: Option<Py<PyAny>>,
 ) -> PyResult<Option<EnsembleOut<'py>>> {
     let c = &chain.inner;
@@ -238,11 +239,14 @@ fn ensemble<'py>(
     let Some(path) = core::chaos::ensemble::route(method).map_err(|e| to_py(py, e))? else {
         return Ok(None);
     };
+    let Some(drive) = timed(py, c.n(), torque.as_deref())? else {
+        return Ok(None);
+    };
     let settings = core::Settings { method, dt, rtol, atol, ..core::Settings::default() };
     let (theta0, omega0) = (slice("theta0", &theta0)?, slice("omega0", &omega0)?);
     let watch = Watch::units((theta0.len() / c.n().max(1)) as u64);
     let out = interruptible(py, &watch, progress.as_ref(), false, || {
-        core::chaos::ensemble::ensemble(c, theta0, omega0, t_end, &settings, path, &watch)
+        core::chaos::ensemble::ensemble(c, theta0, omega0, t_end, &settings, Some(&drive), path, &watch)
     })?
     .map_err(|e| to_py(py, e))?;
     Ok(Some((

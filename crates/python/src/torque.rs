@@ -5,7 +5,7 @@ use std::cell::RefCell;
 use multipendulum_core as core;
 use pyo3::prelude::*;
 
-use core::{Builtin, Error, Interp, Joint, TorqueSource};
+use core::{Builtin, Error, Interp, Joint, Timed, TorqueSource};
 
 use crate::{to_py, vec_out, InputError};
 
@@ -206,6 +206,13 @@ pub(crate) fn torque_error(py: Python<'_>, e: Error, slot: &RefCell<Option<PyErr
         (Error::Torque { .. }, Some(err)) => err,
         _ => to_py(py, e),
     }
+}
+
+/// A torque of time alone for the SIMD lanes (no torque: a zero one); `None` for a Python
+/// function, which they cannot call.
+pub(crate) fn timed(py: Python<'_>, n: usize, spec: Option<&PyTorque>) -> PyResult<Option<Timed>> {
+    let Some(spec) = spec else { return Ok(Some(Timed { builtin: Builtin::None, joint: false })) };
+    Ok(spec.builtin(py, n)?.map(|builtin| Timed { builtin, joint: spec.joint }))
 }
 
 /// A built-in generalized torque for the chaos kernels (which run without the GIL).

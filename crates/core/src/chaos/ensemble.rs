@@ -24,6 +24,7 @@ use crate::dynamics::system::NON_FINITE;
 use crate::dynamics::Workspace;
 use crate::error::{Error, Result};
 use crate::dynamics::system::Form;
+use crate::dynamics::torque::{Builtin, Timed};
 use crate::integrators::dop853_lanes::{Dop853Lanes, StartFailure};
 use crate::integrators::lanes::{ChainLanes, Rk4Lanes};
 use crate::integrators::{Controller, Decision, Method};
@@ -67,8 +68,10 @@ pub fn route(method: Method) -> Result<Option<Path>> {
 /// for its own guess), tolerances and `max_steps`; inputs are checked as a batch `simulate`
 /// checks them, with the same messages. `watch` counts rows done and stops the work between
 /// steps.
-pub fn ensemble(chain: &Chain, theta0: &[f64], omega0: &[f64], t_end: f64, settings: &Settings, path: Path, watch: &Watch) -> Result<Ensemble> {
+#[allow(clippy::too_many_arguments)]
+pub fn ensemble(chain: &Chain, theta0: &[f64], omega0: &[f64], t_end: f64, settings: &Settings, drive: Option<&Timed>, path: Path, watch: &Watch) -> Result<Ensemble> {
     let n = chain.n();
+    let drive = drive.filter(|d| !matches!(d.builtin, Builtin::None));
     if !matches!(settings.method, Method::Rk4 | Method::Dop853) || !settings.adaptive {
         return Err(Error::input(format!("an ensemble in lanes runs rk4 or adaptive dop853, not {}", settings.method.name())));
     }
@@ -89,7 +92,7 @@ pub fn ensemble(chain: &Chain, theta0: &[f64], omega0: &[f64], t_end: f64, setti
         .enumerate()
         .map(|(c, (th, om))| {
             watch.check(0.0)?;
-            let out = run_chunk_on(path, chain, th, om, t_end, &settings, c * CHUNK, watch)?;
+            let out = run_chunk_on(path, chain, th, om, t_end, &settings, drive, c * CHUNK, watch)?;
             watch.add_units((th.len() / n) as u64);
             Ok(out)
         })
@@ -107,35 +110,35 @@ pub fn ensemble(chain: &Chain, theta0: &[f64], omega0: &[f64], t_end: f64, setti
 }
 
 #[allow(clippy::too_many_arguments)]
-fn run_chunk_on(path: Path, chain: &Chain, th: &[f64], om: &[f64], t_end: f64, settings: &Settings, first: usize, watch: &Watch) -> Result<Ensemble> {
+fn run_chunk_on(path: Path, chain: &Chain, th: &[f64], om: &[f64], t_end: f64, settings: &Settings, drive: Option<&Timed>, first: usize, watch: &Watch) -> Result<Ensemble> {
     match path {
         // SAFETY: the path was checked available when chosen (`bank::requested`).
         #[cfg(target_arch = "x86_64")]
-        Path::Avx512 => unsafe { run_chunk_avx512(chain, th, om, t_end, settings, first, watch) },
+        Path::Avx512 => unsafe { run_chunk_avx512(chain, th, om, t_end, settings, drive, first, watch) },
         #[cfg(target_arch = "x86_64")]
-        Path::Avx2 => unsafe { run_chunk_avx2(chain, th, om, t_end, settings, first, watch) },
-        _ => run_chunk(chain, th, om, t_end, settings, first, watch),
+        Path::Avx2 => unsafe { run_chunk_avx2(chain, th, om, t_end, settings, drive, first, watch) },
+        _ => run_chunk(chain, th, om, t_end, settings, drive, first, watch),
     }
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,fma")]
 #[allow(clippy::too_many_arguments)]
-unsafe fn run_chunk_avx512(chain: &Chain, th: &[f64], om: &[f64], t_end: f64, settings: &Settings, first: usize, watch: &Watch) -> Result<Ensemble> {
-    run_chunk(chain, th, om, t_end, settings, first, watch)
+unsafe fn run_chunk_avx512(chain: &Chain, th: &[f64], om: &[f64], t_end: f64, settings: &Settings, drive: Option<&Timed>, first: usize, watch: &Watch) -> Result<Ensemble> {
+    run_chunk(chain, th, om, t_end, settings, drive, first, watch)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 #[allow(clippy::too_many_arguments)]
-unsafe fn run_chunk_avx2(chain: &Chain, th: &[f64], om: &[f64], t_end: f64, settings: &Settings, first: usize, watch: &Watch) -> Result<Ensemble> {
-    run_chunk(chain, th, om, t_end, settings, first, watch)
+unsafe fn run_chunk_avx2(chain: &Chain, th: &[f64], om: &[f64], t_end: f64, settings: &Settings, drive: Option<&Timed>, first: usize, watch: &Watch) -> Result<Ensemble> {
+    run_chunk(chain, th, om, t_end, settings, drive, first, watch)
 }
 
 /// The rows of one chunk (`first`: the index of its first row in the batch, for messages).
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn run_chunk(chain: &Chain, th: &[f64], om: &[f64], t_end: f64, settings: &Settings, first: usize, watch: &Watch) -> Result<Ensemble> {
+fn run_chunk(chain: &Chain, th: &[f64], om: &[f64], t_end: f64, settings: &Settings, drive: Option<&Timed>, first: usize, watch: &Watch) -> Result<Ensemble> {
     let (n, rows) = (chain.n(), th.len() / chain.n());
     let mut out = Ensemble {
         theta: vec![0.0; rows * n],
@@ -145,7 +148,7 @@ fn run_chunk(chain: &Chain, th: &[f64], om: &[f64], t_end: f64, settings: &Setti
         steps: vec![0; rows],
         first_flip: vec![f64::INFINITY; rows],
     };
-    let mut rows = Rows { chain, th, om, first, out: &mut out, ws: Workspace::new(n), scratch: vec![0.0; n] };
+    let mut rows = Rows { chain, drive, th, om, first, out: &mut out, ws: Workspace::new(n), scratch: vec![0.0; n] };
     match settings.method {
         Method::Dop853 => dop853_rows(&mut rows, t_end, settings, watch)?,
         _ => rk4_rows(&mut rows, t_end, settings.dt.unwrap_or(f64::NAN), watch)?,
@@ -156,6 +159,7 @@ fn run_chunk(chain: &Chain, th: &[f64], om: &[f64], t_end: f64, settings: &Setti
 /// A chunk's rows and what the ensemble keeps of them.
 struct Rows<'a> {
     chain: &'a Chain,
+    drive: Option<&'a Timed>,
     th: &'a [f64],
     om: &'a [f64],
     /// The index of the chunk's first row in the batch (for messages).
@@ -185,7 +189,8 @@ impl Rows<'_> {
     }
 
     /// Row `r`'s final state (lane `j` of `y`) and its reductions: the lab frame's momenta and
-    /// energy error (with the losses' work, the lane after the mechanical ones if any).
+    /// energy error (with the work of the drive and of the losses, the lanes after the
+    /// mechanical ones).
     fn finish(&mut self, r: usize, y: &[Lane], j: usize, steps: u64) {
         let chain = self.chain;
         let n = chain.n();
@@ -203,7 +208,7 @@ impl Rows<'_> {
         // The lab frame's kinetic energy and the momenta with the cart's velocity.
         let v = if cart { y[2 * n + 1][j] } else { 0.0 };
         let kinetic = chain.kinetic_energy_moving(theta, omega, [v, 0.0], &mut self.scratch, &mut self.ws);
-        let work = y.get(row).map_or(0.0, |w| w[j]);
+        let work = y[row..].iter().map(|w| w[j]).sum();
         out.energy_error[r] = balance.observe(kinetic, kinetic + chain.potential_energy(theta), work);
         chain.momenta_general(theta, omega, v, &mut out.p[n * r..n * (r + 1)], &mut self.ws);
         out.steps[r] = steps;
@@ -221,8 +226,8 @@ fn rk4_rows(rows: &mut Rows, t_end: f64, dt: f64, watch: &Watch) -> Result<()> {
     // and rates; a lossy chain, or one on a cart, the losses' work (-D) as one more lane, for its
     // energy balance.
     let cart = chain.cart().is_some();
-    let m = 2 * n + 2 * usize::from(cart) + usize::from(cart || chain.lossy_joints());
-    let (mut y, mut y0, tau) = (lanes(m), lanes(m), lanes(n));
+    let m = 2 * n + 2 * usize::from(cart) + usize::from(rows.drive.is_some()) + usize::from(cart || chain.lossy_joints());
+    let (mut y, mut y0, tau, mut q) = (lanes(m), lanes(m), lanes(n), lanes(n));
     let mut rk = Rk4Lanes::with_dim(n, m);
     let steps = fixed_steps(t_end, dt);
     for g in 0..count_all.div_ceil(LANES) {
@@ -250,11 +255,8 @@ fn rk4_rows(rows: &mut Rows, t_end: f64, dt: f64, watch: &Watch) -> Result<()> {
             let t = k as f64 * dt;
             let h = if k + 1 == steps { t_end - t } else { dt };
             y0.copy_from_slice(&y);
-            let stepped = if cart {
-                rk.step_cart(chain, &mut y, &tau, &[0.0; LANES], h, &active)
-            } else {
-                rk.step(chain, &mut y, &tau, h, &active)
-            };
+            let mut sys = ChainLanes { chain, tau: &tau, drive: rows.drive, force: &[0.0; LANES], q: &mut q };
+            let stepped = rk.step_system(&mut y, t, h, &active, &mut sys);
             let nonfinite = stepped.map_err(|(stage, bad)| {
                 let j = (0..LANES).find(|&j| bad.lanes[j]).unwrap_or(0);
                 rows.error(lo + j, t + [0.0, 0.5, 0.5, 1.0][stage] * h, &bad.link.reason())
@@ -294,8 +296,9 @@ fn dop853_rows(rows: &mut Rows, t_end: f64, settings: &Settings, watch: &Watch) 
     let count = rows.th.len() / n;
     let lanes = |k| vec![[0.0; LANES]; k];
     // The per-trajectory run's state: the cart's x and v after the angles and rates, then the
-    // losses' work (it is -D there: D; the error norm sees only its size), all controlled.
-    let m = 2 * n + 2 * usize::from(chain.cart().is_some()) + usize::from(chain.dissipative());
+    // drive's work, then the losses' (it is -D here, D there; the error norm sees only its
+    // size), all controlled.
+    let m = 2 * n + 2 * usize::from(chain.cart().is_some()) + usize::from(rows.drive.is_some()) + usize::from(chain.dissipative());
     let mut dp = Dop853Lanes::new(n, m, m, settings.rtol, settings.atol);
     let (mut y, mut y_new, tau, mut q) = (lanes(m), lanes(m), lanes(n), lanes(n));
     let zero = [0.0; LANES];
@@ -325,7 +328,7 @@ fn dop853_rows(rows: &mut Rows, t_end: f64, settings: &Settings, watch: &Watch) 
                 trackers[j].start(0.0, &state)?;
             }
         }
-        let mut sys = ChainLanes { chain, tau: &tau, force: &zero, q: &mut q };
+        let mut sys = ChainLanes { chain, tau: &tau, drive: rows.drive, force: &zero, q: &mut q };
         if fresh.iter().any(|&f| f) {
             let first = dp.start(&mut sys, &t, &y, &fresh, &[t_end; LANES], settings.dt).map_err(|(j, why)| {
                 let r = slot[j].unwrap_or(0);
@@ -461,7 +464,7 @@ mod tests {
             let n = chain.n();
             let (th, om) = rows(n, 37);
             let (t_end, dt) = (0.834, 0.01); // the last step is shortened
-            let got = ensemble(&chain, &th, &om, t_end, &rk4(dt), Path::best(), &Watch::new()).unwrap();
+            let got = ensemble(&chain, &th, &om, t_end, &rk4(dt), None, Path::best(), &Watch::new()).unwrap();
             let settings = Settings {
                 method: Method::Rk4,
                 dt: Some(dt),
@@ -499,11 +502,11 @@ mod tests {
     fn every_path_gives_the_same_bits_and_a_row_its_own_whatever_its_neighbours() {
         let chain = &chains()[1];
         let (th, om) = rows(3, 300);
-        let reference = ensemble(chain, &th, &om, 3.0, &rk4(0.01), Path::Portable, &Watch::new()).unwrap();
+        let reference = ensemble(chain, &th, &om, 3.0, &rk4(0.01), None, Path::Portable, &Watch::new()).unwrap();
         for path in Path::ALL.into_iter().filter(|p| p.available()) {
-            assert_eq!(ensemble(chain, &th, &om, 3.0, &rk4(0.01), path, &Watch::new()).unwrap(), reference, "{path:?}");
+            assert_eq!(ensemble(chain, &th, &om, 3.0, &rk4(0.01), None, path, &Watch::new()).unwrap(), reference, "{path:?}");
         }
-        let one = ensemble(chain, &th[3 * 261..3 * 262], &om[3 * 261..3 * 262], 3.0, &rk4(0.01), Path::best(), &Watch::new()).unwrap();
+        let one = ensemble(chain, &th[3 * 261..3 * 262], &om[3 * 261..3 * 262], 3.0, &rk4(0.01), None, Path::best(), &Watch::new()).unwrap();
         assert_eq!(one.theta, reference.theta[3 * 261..3 * 262].to_vec());
         assert_eq!(one.first_flip[0].to_bits(), reference.first_flip[261].to_bits());
     }
@@ -511,11 +514,11 @@ mod tests {
     #[test]
     fn bad_rows_and_blow_ups_name_their_trajectory() {
         let chain = &chains()[0];
-        let e = ensemble(chain, &[0.1, 0.2, 0.3, f64::NAN], &[0.0; 4], 1.0, &rk4(0.01), Path::best(), &Watch::new()).unwrap_err();
+        let e = ensemble(chain, &[0.1, 0.2, 0.3, f64::NAN], &[0.0; 4], 1.0, &rk4(0.01), None, Path::best(), &Watch::new()).unwrap_err();
         assert_eq!(e.to_string(), "trajectory 1: theta0[1] must be finite, got NaN");
-        let e = ensemble(chain, &[0.1; 4], &[0.0, 0.0, 1e200, 0.0], 1.0, &rk4(0.01), Path::best(), &Watch::new()).unwrap_err();
+        let e = ensemble(chain, &[0.1; 4], &[0.0, 0.0, 1e200, 0.0], 1.0, &rk4(0.01), None, Path::best(), &Watch::new()).unwrap_err();
         assert!(matches!(e, Error::Integration { .. }) && e.to_string().contains("trajectory 1:"), "{e}");
-        let e = ensemble(chain, &[0.1; 4], &[0.0; 4], 1.0, &rk4(-0.01), Path::best(), &Watch::new()).unwrap_err();
+        let e = ensemble(chain, &[0.1; 4], &[0.0; 4], 1.0, &rk4(-0.01), None, Path::best(), &Watch::new()).unwrap_err();
         assert_eq!(e.to_string(), "dt must be > 0 and finite, got -0.01");
     }
 
@@ -542,7 +545,7 @@ mod tests {
             let n = chain.n();
             let (th, om) = rows(n, 29);
             let t_end = 0.834;
-            let got = ensemble(&chain, &th, &om, t_end, &settings, Path::best(), &Watch::new()).unwrap();
+            let got = ensemble(&chain, &th, &om, t_end, &settings, None, Path::best(), &Watch::new()).unwrap();
             let want = per_trajectory(&chain, &th, &om, t_end, &settings);
             let exact = per_trajectory(&chain, &th, &om, t_end, &tight);
             let (mut flips, mut steps, mut log_ratio) = (0, (0, 0), 0.0);
@@ -591,18 +594,18 @@ mod tests {
         let chain = &chains()[4];
         let (th, om) = rows(3, 301);
         let settings = Settings { rtol: 1e-8, atol: 1e-10, ..Settings::default() };
-        let reference = ensemble(chain, &th, &om, 2.0, &settings, Path::Portable, &Watch::new()).unwrap();
+        let reference = ensemble(chain, &th, &om, 2.0, &settings, None, Path::Portable, &Watch::new()).unwrap();
         assert!(reference.steps.iter().min() < reference.steps.iter().max(), "rows take their own steps");
         for path in Path::ALL.into_iter().filter(|p| p.available()) {
-            assert_eq!(ensemble(chain, &th, &om, 2.0, &settings, path, &Watch::new()).unwrap(), reference, "{path:?}");
+            assert_eq!(ensemble(chain, &th, &om, 2.0, &settings, None, path, &Watch::new()).unwrap(), reference, "{path:?}");
         }
         // Alone, a row meets another lane's history (and is no longer refilled mid-group).
-        let one = ensemble(chain, &th[3 * 261..3 * 262], &om[3 * 261..3 * 262], 2.0, &settings, Path::best(), &Watch::new()).unwrap();
+        let one = ensemble(chain, &th[3 * 261..3 * 262], &om[3 * 261..3 * 262], 2.0, &settings, None, Path::best(), &Watch::new()).unwrap();
         assert_eq!(one.theta, reference.theta[3 * 261..3 * 262].to_vec());
         assert_eq!(one.steps[0], reference.steps[261]);
         // A first step of dt, and max_steps, as the per-trajectory run takes them.
         let short = Settings { dt: Some(1e-4), max_steps: 40, ..settings.clone() };
-        let e = ensemble(chain, &th[..9], &om[..9], 2.0, &short, Path::best(), &Watch::new()).unwrap_err();
+        let e = ensemble(chain, &th[..9], &om[..9], 2.0, &short, None, Path::best(), &Watch::new()).unwrap_err();
         let Error::Integration { t, reason } = &e else { panic!("{e}") };
         let (row, rest) = reason.strip_prefix("trajectory ").and_then(|r| r.split_once(": ")).unwrap();
         assert_eq!(rest, "reached max_steps = 40 before t_end");
@@ -612,11 +615,57 @@ mod tests {
         assert!((t - at).abs() < 1e-6, "{t} vs {at}");
         // (On a chain without the friction's stiffness, where the routes' steps agree.)
         let (chain, small) = (&chains()[1], Settings { dt: Some(1e-4), ..settings.clone() });
-        let got = ensemble(chain, &th[..9], &om[..9], 0.5, &small, Path::best(), &Watch::new()).unwrap();
+        let got = ensemble(chain, &th[..9], &om[..9], 0.5, &small, None, Path::best(), &Watch::new()).unwrap();
         let want = per_trajectory(chain, &th[..9], &om[..9], 0.5, &small);
         for (i, tr) in want.iter().enumerate() {
             assert!(got.steps[i].abs_diff(tr.stats.steps) <= 1, "row {i}");
             assert!((got.theta[3 * i] - tr.theta[0]).abs() < 1e-9, "row {i}");
+        }
+    }
+
+    #[test]
+    fn driven_lanes_agree_with_the_per_trajectory_route_and_close_the_energy_balance() {
+        let chains = chains();
+        let drives = [
+            Timed { builtin: Builtin::sinusoid(2, vec![1.5, -0.7], vec![3.0, 5.5], vec![0.1, 0.0], vec![0.2, 0.0]).unwrap(), joint: false },
+            Timed { builtin: Builtin::table(3, vec![0.0, 0.3, 0.9], vec![0.0, 1.0, -2.0, 1.0, 0.5, 0.0, 2.0, -1.0, 0.3], crate::Interp::Cubic).unwrap(), joint: true },
+        ];
+        // The double pendulum ideal, damped and on a free cart; the rods ideal and damped on a
+        // damped cart.
+        for (c, drive) in [(0, &drives[0]), (3, &drives[0]), (5, &drives[0]), (1, &drives[1]), (6, &drives[1])] {
+            let chain = &chains[c];
+            let n = chain.n();
+            let (th, om) = rows(n, 21);
+            let t_end = 0.834;
+            for settings in [rk4(0.01), Settings::default()] {
+                let got = ensemble(chain, &th, &om, t_end, &settings, Some(drive), Path::best(), &Watch::new()).unwrap();
+                let full = Settings {
+                    t_eval: Some(vec![t_end]),
+                    events: vec![EventSpec { condition: Condition::Flip(None), direction: 1, terminal: false }],
+                    ..settings.clone()
+                };
+                let want = simulate_batch(chain, &th, &om, t_end, &full, drive, &Watch::new()).unwrap();
+                // rk4: round-off grown by chaos (the drive pumps energy in: these rows whirl
+                // faster than the undriven ones); dop853: its tolerance (see the undriven test).
+                let tol = if settings.method == Method::Rk4 { 1e-11 } else { 1e-8 };
+                for (i, tr) in want.iter().enumerate() {
+                    for a in 0..n {
+                        let (x, y) = (got.theta[n * i + a], tr.theta[a]);
+                        assert!((x - y).abs() <= tol * (1.0 + y.abs()), "chain {c}, {:?}, row {i}: {x} vs {y}", settings.method);
+                        let (x, y) = (got.p[n * i + a], tr.p[a]);
+                        assert!((x - y).abs() <= tol * (1.0 + y.abs()), "chain {c}, row {i}: p {x} vs {y}");
+                    }
+                    let first = tr.events.first().map_or(f64::INFINITY, |h| h.1);
+                    assert_eq!(first.is_finite(), got.first_flip[i].is_finite(), "chain {c}, row {i}");
+                    // The balance with the drive's work closes (the drive does joules of work):
+                    // to dop853's tolerance.
+                    assert!((got.energy_error[i] - tr.stats.energy_error).abs() < 1e-10, "chain {c}, row {i}");
+                    if settings.method == Method::Dop853 {
+                        assert!(got.energy_error[i] < 1e-8, "chain {c}, row {i}: {}", got.energy_error[i]);
+                    }
+                    assert!(tr.work[0].abs() > 1e-2, "chain {c}, row {i}: the drive did work {}", tr.work[0]);
+                }
+            }
         }
     }
 }

@@ -108,35 +108,103 @@ impl TorqueSource for Builtin {
     }
 
     fn eval(&mut self, t: f64, _theta: &[f64], _omega: &[f64], out: &mut [f64]) -> Result<()> {
+        if let Builtin::None = self {
+            out.fill(0.0);
+        }
+        self.each(t, |i, v| out[i] = v);
+        Ok(())
+    }
+}
+
+impl Builtin {
+    /// The torques at time `t`, each handed to `put(link, value)` (none for [`Builtin::None`]).
+    #[inline]
+    pub fn each(&self, t: f64, mut put: impl FnMut(usize, f64)) {
         match self {
-            Builtin::None => out.fill(0.0),
-            Builtin::Constant(v) => out.copy_from_slice(v),
+            Builtin::None => {}
+            Builtin::Constant(v) => {
+                for (i, &x) in v.iter().enumerate() {
+                    put(i, x);
+                }
+            }
             Builtin::Sinusoid { amplitude, frequency, phase, offset } => {
-                for (i, o) in out.iter_mut().enumerate() {
-                    *o = offset[i] + amplitude[i] * (frequency[i] * t + phase[i]).sin();
+                for i in 0..offset.len() {
+                    put(i, offset[i] + amplitude[i] * (frequency[i] * t + phase[i]).sin());
                 }
             }
             Builtin::Table { times, values, interp, second } => {
-                let n = out.len();
+                let n = values.len() / times.len();
                 let k = times.len();
                 if t <= times[0] || t >= times[k - 1] {
                     let row = if t <= times[0] { 0 } else { k - 1 };
-                    out.copy_from_slice(&values[row * n..(row + 1) * n]);
-                    return Ok(());
+                    for i in 0..n {
+                        put(i, values[row * n + i]);
+                    }
+                    return;
                 }
                 let j = times.partition_point(|&s| s <= t) - 1; // times[j] <= t < times[j+1]
                 let h = times[j + 1] - times[j];
                 let (a, b) = ((times[j + 1] - t) / h, (t - times[j]) / h);
-                for (i, o) in out.iter_mut().enumerate() {
+                for i in 0..n {
                     let (y0, y1) = (values[j * n + i], values[(j + 1) * n + i]);
                     // Exact on flat segments (a * y0 + b * y1 is not, since a + b rounds).
-                    *o = y0 + b * (y1 - y0);
+                    let mut o = y0 + b * (y1 - y0);
                     if *interp == Interp::Cubic {
                         let (m0, m1) = (second[j * n + i], second[(j + 1) * n + i]);
-                        *o += ((a * a * a - a) * m0 + (b * b * b - b) * m1) * h * h / 6.0;
+                        o += ((a * a * a - a) * m0 + (b * b * b - b) * m1) * h * h / 6.0;
                     }
+                    put(i, o);
                 }
             }
+        }
+    }
+}
+
+/// Joint-motor torques `u` (in `out`) to generalized ones, in place: `tau_i = u_i - u_{i+1}`.
+#[inline]
+fn joint_to_generalized(out: &mut [f64]) {
+    for i in 0..out.len().saturating_sub(1) {
+        out[i] -= out[i + 1];
+    }
+}
+
+/// A torque of time alone evaluated in Rust: a built-in, generalized or in the joint-motor
+/// convention (`joint`). What the SIMD lanes take (`Timed::lane`), as runs do (it is a
+/// [`TorqueSource`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Timed {
+    pub builtin: Builtin,
+    pub joint: bool,
+}
+
+impl Timed {
+    /// The generalized torques at time `t` into lane `i` of `out` (`out[link][i]`).
+    #[inline]
+    pub fn lane<const L: usize>(&self, t: f64, out: &mut [[f64; L]], i: usize) {
+        if let Builtin::None = self.builtin {
+            for o in out.iter_mut() {
+                o[i] = 0.0;
+            }
+            return;
+        }
+        self.builtin.each(t, |a, v| out[a][i] = v);
+        if self.joint {
+            for a in 0..out.len().saturating_sub(1) {
+                out[a][i] -= out[a + 1][i];
+            }
+        }
+    }
+}
+
+impl TorqueSource for Timed {
+    fn active(&self) -> bool {
+        self.builtin.active()
+    }
+
+    fn eval(&mut self, t: f64, theta: &[f64], omega: &[f64], out: &mut [f64]) -> Result<()> {
+        self.builtin.eval(t, theta, omega, out)?;
+        if self.joint {
+            joint_to_generalized(out);
         }
         Ok(())
     }
@@ -156,9 +224,7 @@ impl<T: TorqueSource> TorqueSource for Joint<T> {
     }
     fn eval(&mut self, t: f64, theta: &[f64], omega: &[f64], out: &mut [f64]) -> Result<()> {
         self.0.eval(t, theta, omega, out)?;
-        for i in 0..out.len().saturating_sub(1) {
-            out[i] -= out[i + 1];
-        }
+        joint_to_generalized(out);
         Ok(())
     }
 }

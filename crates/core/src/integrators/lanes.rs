@@ -5,6 +5,7 @@
 //! by the steppers' bank (`run::bank`) and by the flip times of chains other than the double
 //! pendulum (`chaos::flipkernel`); both compile it inside their `#[target_feature]` wrappers.
 use crate::dynamics::lanes::{accelerations, accelerations_cart, add_losses, CartLanes, LaneScratch, LaneSingular};
+use crate::dynamics::torque::Timed;
 use crate::model::Chain;
 use crate::trig::lanes::{Lane, LANES};
 
@@ -19,13 +20,17 @@ pub trait LaneSystem {
     fn rates(&mut self, at: &Lane, y: &[Lane], dy: &mut [Lane], scratch: &mut LaneScratch, active: &Lane) -> std::result::Result<(), LaneSingular>;
 }
 
-/// A chain's own equations in lanes under generalized torques `tau` held over the step:
-/// `y = [theta (N), omega (N)]`, then the cart's `[x, v]` under `force` (less its damping) on a
-/// chain with a cart, then, if `y` has room for it, the work `W` of the joints' losses and the
-/// cart's damping (`W' = -P`, the power they take), which a lossy chain feels at every stage.
+/// A chain's own equations in lanes under generalized torques `tau` held over the step, or
+/// `drive`'s torques of time at each stage's times instead: `y = [theta (N), omega (N)]`, then the
+/// cart's `[x, v]` under `force` (less its damping) on a chain with a cart, then the drive's work
+/// (`int tau . omega dt`) with a drive, then, if `y` has room for it, the work `W` of the joints'
+/// losses and the cart's damping (`W' = -P`, the power they take), which a lossy chain feels at
+/// every stage.
 pub struct ChainLanes<'a> {
     pub chain: &'a Chain,
     pub tau: &'a [Lane],
+    /// Torques of time, in place of `tau`.
+    pub drive: Option<&'a Timed>,
     /// The force on the cart (unused without one).
     pub force: &'a Lane,
     /// The generalized forces with the losses (`N` lanes of scratch).
@@ -34,41 +39,67 @@ pub struct ChainLanes<'a> {
 
 impl LaneSystem for ChainLanes<'_> {
     #[inline(always)]
-    fn rates(&mut self, _at: &Lane, y: &[Lane], dy: &mut [Lane], scratch: &mut LaneScratch, active: &Lane) -> std::result::Result<(), LaneSingular> {
+    fn rates(&mut self, at: &Lane, y: &[Lane], dy: &mut [Lane], scratch: &mut LaneScratch, active: &Lane) -> std::result::Result<(), LaneSingular> {
         let chain = self.chain;
         let n = chain.n();
+        let (theta, omega) = (&y[..n], &y[n..2 * n]);
+        let (cart, lossy) = (chain.cart(), chain.lossy_joints());
         let (head, tail) = dy.split_at_mut(n);
-        head.copy_from_slice(&y[n..2 * n]);
-        let Some(cart) = chain.cart() else {
-            if !chain.lossy_joints() {
-                return accelerations(chain, &y[..n], &y[n..2 * n], self.tau, tail, scratch, active);
+        head.copy_from_slice(omega);
+        if self.drive.is_none() && !lossy && cart.is_none() {
+            return accelerations(chain, theta, omega, self.tau, tail, scratch, active);
+        }
+        let mut drive_power = None;
+        match self.drive {
+            Some(drive) => {
+                // Lanes at the same time (rk4's) share one evaluation.
+                drive.lane(at[0], self.q, 0);
+                for i in 1..LANES {
+                    if at[i] == at[0] {
+                        for q in self.q.iter_mut() {
+                            q[i] = q[0];
+                        }
+                    } else {
+                        drive.lane(at[i], self.q, i);
+                    }
+                }
+                let mut p = [0.0; LANES];
+                for (q, w) in self.q.iter().zip(omega) {
+                    for i in 0..LANES {
+                        p[i] += q[i] * w[i];
+                    }
+                }
+                drive_power = Some(p);
             }
-            self.q.copy_from_slice(self.tau);
-            let mut power = [0.0; LANES];
-            add_losses(chain, &y[n..2 * n], self.q, &mut power);
-            accelerations(chain, &y[..n], &y[n..2 * n], self.q, &mut tail[..n], scratch, active)?;
-            if let Some(work) = tail.get_mut(n) {
-                *work = power.map(|p| -p);
-            }
-            return Ok(());
-        };
-        self.q.copy_from_slice(self.tau);
+            None => self.q.copy_from_slice(self.tau),
+        }
         let mut power = [0.0; LANES];
-        if chain.lossy_joints() {
-            add_losses(chain, &y[n..2 * n], self.q, &mut power);
+        if lossy {
+            add_losses(chain, omega, self.q, &mut power);
         }
-        let v = y[2 * n + 1];
-        let mut force = [0.0; LANES];
-        for i in 0..LANES {
-            force[i] = self.force[i] - cart.damping * v[i];
-            power[i] += cart.damping * v[i] * v[i];
+        let mut slot = 2 * n;
+        match cart {
+            None => accelerations(chain, theta, omega, self.q, &mut tail[..n], scratch, active)?,
+            Some(cart) => {
+                let v = y[2 * n + 1];
+                let mut force = [0.0; LANES];
+                for i in 0..LANES {
+                    force[i] = self.force[i] - cart.damping * v[i];
+                    power[i] += cart.damping * v[i] * v[i];
+                }
+                let (acc, rest) = tail.split_at_mut(n);
+                let mut x_ddot = [0.0; LANES];
+                accelerations_cart(chain, theta, omega, self.q, acc, scratch, active, CartLanes { force: &force, x_ddot: &mut x_ddot })?;
+                rest[0] = v;
+                rest[1] = x_ddot;
+                slot += 2;
+            }
         }
-        let (acc, rest) = tail.split_at_mut(n);
-        let mut x_ddot = [0.0; LANES];
-        accelerations_cart(chain, &y[..n], &y[n..2 * n], self.q, acc, scratch, active, CartLanes { force: &force, x_ddot: &mut x_ddot })?;
-        rest[0] = v;
-        rest[1] = x_ddot;
-        if let Some(work) = rest.get_mut(2) {
+        if let Some(p) = drive_power {
+            dy[slot] = p;
+            slot += 1;
+        }
+        if let Some(work) = dy.get_mut(slot) {
             *work = power.map(|p| -p);
         }
         Ok(())
@@ -131,7 +162,7 @@ impl Rk4Lanes {
     ) -> std::result::Result<[bool; LANES], (usize, LaneSingular)> {
         let mut q = std::mem::take(&mut self.q);
         // The chain's equations do not depend on time: the steps' times are immaterial.
-        let out = self.step_system(y, 0.0, dt, active, &mut ChainLanes { chain, tau, force, q: &mut q });
+        let out = self.step_system(y, 0.0, dt, active, &mut ChainLanes { chain, tau, drive: None, force, q: &mut q });
         self.q = q;
         out
     }
