@@ -173,6 +173,26 @@ def test_chains_of_any_n_flip_in_lanes_as_on_the_per_trajectory_path(monkeypatch
     np.testing.assert_array_equal(fast == 0, slow == 0)
 
 
+@pytest.mark.parametrize("n, torque", [
+    (2, mp.Sinusoid([4.0, 0.0], [2.0, 1.0], phase=[0.3, 0.0], offset=[0.5, 0.0])),   # the double pendulum's
+    (3, mp.Sinusoid([3.0, 1.0, 2.0], [2.0, 3.0, 5.0])),                            # own kernel is undriven
+    (3, mp.Table([0.0, 1.0, 2.0], [[0, 1, 2], [2, -1, 0], [1, 1, 1]], kind="cubic")),
+])
+def test_driven_chains_flip_in_lanes_as_on_the_per_trajectory_path(monkeypatch, n, torque):
+    chain = chains(n)["rods"]
+    th0 = released(n)
+    monkeypatch.setenv(SWITCH, "auto")
+    fast = mp.flip_times(chain, th0, t_max=4.0, torque=torque)
+    undriven = mp.flip_times(chain, th0, t_max=4.0)
+    monkeypatch.setenv(SWITCH, "scalar")
+    slow = mp.flip_times(chain, th0, t_max=4.0, torque=torque)
+    assert np.mean(fast != undriven) > 0.2  # the torque matters
+    assert np.mean(np.isfinite(fast) == np.isfinite(slow)) > 0.98
+    early = (fast < 1.0) & (slow < 1.0) & (slow > 0)
+    assert early.sum() > 30
+    np.testing.assert_allclose(fast[early], slow[early], rtol=0, atol=1e-9)
+
+
 def test_lanes_give_the_same_bits_on_every_path_and_alone(monkeypatch):
     chain = chains(4)["rods"]
     th0 = released(4, 25)

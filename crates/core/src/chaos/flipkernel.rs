@@ -28,7 +28,8 @@ use super::flip_time;
 use crate::trig::lanes::{sin_cos, Lane, Path, LANES};
 use crate::dynamics::{Singular, PIVOT_TOL};
 use crate::error::{Error, Result};
-use crate::integrators::lanes::Rk4Lanes;
+use crate::dynamics::torque::Timed;
+use crate::integrators::lanes::{ChainLanes as Equations, Rk4Lanes};
 use crate::model::Chain;
 use crate::par::*;
 use crate::dynamics::system::NON_FINITE;
@@ -326,8 +327,8 @@ impl ChainLanes {
     }
 }
 
-/// [`run_chunk`] for an undriven chain of any N (losses and a cart included), stepped by
-/// [`Rk4Lanes`]: `out[j]` for the
+/// [`run_chunk`] for a chain of any N (losses and a cart included), undriven or under `drive`'s
+/// torques of time (each lane at its own trajectory's time), stepped by [`Rk4Lanes`]: `out[j]` for the
 /// rows `theta0[N j..N (j + 1)]`, `omega0[..]`; `links` the links whose flip counts, in order
 /// (the first one over the top is the one timed, as on the scalar path).
 #[inline(always)]
@@ -338,14 +339,16 @@ fn run_chunk_chain(
     steps: u64,
     dt: f64,
     links: &[usize],
+    drive: Option<&Timed>,
     stop: &Watch,
     out: &mut [f64],
 ) -> Result<()> {
     let n = chain.n();
     let lanes = |k| vec![[0.0; LANES]; k];
-    // A chain on a cart carries the cart's x and v after its angles and rates.
-    let cart = chain.cart().is_some();
-    let m = 2 * n + 2 * usize::from(cart);
+    // A chain on a cart carries the cart's x and v after its angles and rates; a driven one, its
+    // torques' work (for the lanes' layout; not reported).
+    let m = 2 * n + 2 * usize::from(chain.cart().is_some()) + usize::from(drive.is_some());
+    let mut q = lanes(n);
     let mut s = ChainLanes {
         y: lanes(m),
         y0: lanes(m),
@@ -366,11 +369,10 @@ fn run_chunk_chain(
         // at once on chains of thousands of links too).
         stop.check(s.step[0] as f64 * dt)?;
         s.y0.copy_from_slice(&s.y);
-        let stepped = if cart {
-            s.rk.step_cart(chain, &mut s.y, &s.tau, &[0.0; LANES], dt, &s.active)
-        } else {
-            s.rk.step(chain, &mut s.y, &s.tau, dt, &s.active)
-        };
+        // Each lane at its own trajectory's time (for a drive).
+        let t: Lane = std::array::from_fn(|i| s.step[i] as f64 * dt);
+        let mut sys = Equations { chain, tau: &s.tau, drive, force: &[0.0; LANES], q: &mut q };
+        let stepped = s.rk.step_system_at(&mut s.y, &t, dt, &s.active, &mut sys);
         let nonfinite = match stepped {
             Ok(nonfinite) => nonfinite,
             Err((stage, bad)) => {
@@ -417,31 +419,31 @@ fn run_chunk_chain(
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,fma")]
 #[allow(clippy::too_many_arguments)]
-unsafe fn run_chunk_chain_avx512(chain: &Chain, th: &[f64], om: &[f64], steps: u64, dt: f64, links: &[usize], stop: &Watch, out: &mut [f64]) -> Result<()> {
-    run_chunk_chain(chain, th, om, steps, dt, links, stop, out)
+unsafe fn run_chunk_chain_avx512(chain: &Chain, th: &[f64], om: &[f64], steps: u64, dt: f64, links: &[usize], drive: Option<&Timed>, stop: &Watch, out: &mut [f64]) -> Result<()> {
+    run_chunk_chain(chain, th, om, steps, dt, links, drive, stop, out)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 #[allow(clippy::too_many_arguments)]
-unsafe fn run_chunk_chain_avx2(chain: &Chain, th: &[f64], om: &[f64], steps: u64, dt: f64, links: &[usize], stop: &Watch, out: &mut [f64]) -> Result<()> {
-    run_chunk_chain(chain, th, om, steps, dt, links, stop, out)
+unsafe fn run_chunk_chain_avx2(chain: &Chain, th: &[f64], om: &[f64], steps: u64, dt: f64, links: &[usize], drive: Option<&Timed>, stop: &Watch, out: &mut [f64]) -> Result<()> {
+    run_chunk_chain(chain, th, om, steps, dt, links, drive, stop, out)
 }
 
 #[allow(clippy::too_many_arguments)]
-fn run_chunk_chain_on(path: Path, chain: &Chain, th: &[f64], om: &[f64], steps: u64, dt: f64, links: &[usize], stop: &Watch, out: &mut [f64]) -> Result<()> {
+fn run_chunk_chain_on(path: Path, chain: &Chain, th: &[f64], om: &[f64], steps: u64, dt: f64, links: &[usize], drive: Option<&Timed>, stop: &Watch, out: &mut [f64]) -> Result<()> {
     assert!(path.available(), "the {} kernel needs a CPU feature this one lacks", path.name());
     match path {
         // SAFETY: the CPU has the feature (checked just above).
         #[cfg(target_arch = "x86_64")]
-        Path::Avx512 => unsafe { run_chunk_chain_avx512(chain, th, om, steps, dt, links, stop, out) },
+        Path::Avx512 => unsafe { run_chunk_chain_avx512(chain, th, om, steps, dt, links, drive, stop, out) },
         #[cfg(target_arch = "x86_64")]
-        Path::Avx2 => unsafe { run_chunk_chain_avx2(chain, th, om, steps, dt, links, stop, out) },
-        _ => run_chunk_chain(chain, th, om, steps, dt, links, stop, out),
+        Path::Avx2 => unsafe { run_chunk_chain_avx2(chain, th, om, steps, dt, links, drive, stop, out) },
+        _ => run_chunk_chain(chain, th, om, steps, dt, links, drive, stop, out),
     }
 }
 
-/// First-flip times of an undriven ideal chain of any N in lanes ([`Rk4Lanes`]: the recursion
+/// First-flip times of a chain of any N in lanes, undriven or under `drive` ([`Rk4Lanes`]: the recursion
 /// of [`crate::dynamics::lanes`], the lanes' `sin`/`cos`, fused product-sums), with the same
 /// rules as `chaos::first_flips`, which validates the input and calls this. Agrees with the
 /// per-trajectory path to round-off; the same bits on every path and any number of threads.
@@ -453,6 +455,7 @@ pub(crate) fn first_flips_chain(
     steps: u64,
     dt: f64,
     link: Option<usize>,
+    drive: Option<&Timed>,
     path: Path,
     stop: &Watch,
 ) -> Result<Vec<f64>> {
@@ -466,7 +469,7 @@ pub(crate) fn first_flips_chain(
         .map(|(th, om)| {
             let mut out = vec![0.0; th.len() / n];
             stop.check(0.0)?;
-            run_chunk_chain_on(path, chain, th, om, steps, dt, &links, stop, &mut out)?;
+            run_chunk_chain_on(path, chain, th, om, steps, dt, &links, drive, stop, &mut out)?;
             stop.add_units(out.len() as u64);
             Ok(out)
         })
@@ -657,7 +660,7 @@ mod tests {
             for chain in chains_of(n) {
                 for link in [None, Some(0), Some(n - 1)] {
                     let (th, om) = released(n, 31);
-                    let fast = first_flips_chain(&chain, &th, &om, 300, 0.01, link, Path::best(), &go()).unwrap();
+                    let fast = first_flips_chain(&chain, &th, &om, 300, 0.01, link, None, Path::best(), &go()).unwrap();
                     let slow = first_flips_scalar(&chain, &th, &om, 3.0, 0.01, link, &Builtin::None, &go()).unwrap();
                     let same = fast.iter().zip(&slow).filter(|(a, b)| a.is_finite() == b.is_finite()).count();
                     assert!(same as f64 >= 0.99 * fast.len() as f64, "N = {n}: {same} of {}", fast.len());
@@ -678,15 +681,15 @@ mod tests {
         let n = 4;
         let (th, om) = released(n, 23);
         for chain in chains_of(n) {
-            let reference = first_flips_chain(&chain, &th, &om, 400, 0.01, None, Path::Portable, &go()).unwrap();
+            let reference = first_flips_chain(&chain, &th, &om, 400, 0.01, None, None, Path::Portable, &go()).unwrap();
             assert!(reference.iter().any(|t| t.is_finite() && *t > 0.0) && reference.iter().any(|t| t.is_infinite()));
             for path in Path::ALL.into_iter().filter(|p| p.available()) {
-                let got = first_flips_chain(&chain, &th, &om, 400, 0.01, None, path, &go()).unwrap();
+                let got = first_flips_chain(&chain, &th, &om, 400, 0.01, None, None, path, &go()).unwrap();
                 assert!(got.iter().zip(&reference).all(|(a, b)| a.to_bits() == b.to_bits()), "{path:?}");
             }
             // A row's time does not depend on its neighbours: each row alone, from its middle on.
             for j in [0, 7, 100, 300] {
-                let one = first_flips_chain(&chain, &th[n * j..n * (j + 1)], &om[n * j..n * (j + 1)], 400, 0.01, None, Path::best(), &go())
+                let one = first_flips_chain(&chain, &th[n * j..n * (j + 1)], &om[n * j..n * (j + 1)], 400, 0.01, None, None, Path::best(), &go())
                     .unwrap();
                 assert_eq!(one[0].to_bits(), reference[j].to_bits(), "row {j}");
             }
@@ -694,9 +697,40 @@ mod tests {
     }
 
     #[test]
+    fn driven_chains_flip_in_lanes_as_on_the_scalar_path_each_row_at_its_own_time() {
+        for n in [2, 3] {
+            let drive = Builtin::sinusoid(n, vec![4.0; n], (0..n).map(|a| 2.0 + a as f64).collect(), vec![0.3; n], vec![0.5; n]).unwrap();
+            let timed = Timed { builtin: drive.clone(), joint: false };
+            for chain in chains_of(n) {
+                let (th, om) = released(n, 23);
+                let fast = first_flips_chain(&chain, &th, &om, 300, 0.01, None, Some(&timed), Path::best(), &go()).unwrap();
+                let slow = first_flips_scalar(&chain, &th, &om, 3.0, 0.01, None, &drive, &go()).unwrap();
+                let undriven = first_flips_chain(&chain, &th, &om, 300, 0.01, None, None, Path::best(), &go()).unwrap();
+                assert!(fast.iter().zip(&undriven).filter(|(a, b)| a != b).count() > 100, "the drive changes the flips");
+                let same = fast.iter().zip(&slow).filter(|(a, b)| a.is_finite() == b.is_finite()).count();
+                assert!(same as f64 >= 0.99 * fast.len() as f64, "N = {n}: {same} of {}", fast.len());
+                let early: Vec<_> = fast.iter().zip(&slow).filter(|(a, b)| **a < 1.0 && **b < 1.0).collect();
+                assert!(early.len() > 30, "N = {n}: {}", early.len());
+                for (a, b) in early {
+                    assert!((a - b).abs() < 1e-9, "N = {n}: {a} vs {b}");
+                }
+                // Lanes are refilled at different times: a row alone is the same bits.
+                for path in Path::ALL.into_iter().filter(|p| p.available()) {
+                    let got = first_flips_chain(&chain, &th, &om, 300, 0.01, None, Some(&timed), path, &go()).unwrap();
+                    assert!(got.iter().zip(&fast).all(|(a, b)| a.to_bits() == b.to_bits()), "{path:?}");
+                }
+                for j in [3, 200, 528] {
+                    let one = first_flips_chain(&chain, &th[n * j..n * (j + 1)], &om[n * j..n * (j + 1)], 300, 0.01, None, Some(&timed), Path::best(), &go()).unwrap();
+                    assert_eq!(one[0].to_bits(), fast[j].to_bits(), "row {j}");
+                }
+            }
+        }
+    }
+
+    #[test]
     fn a_chain_that_blows_up_is_an_integration_error_with_its_time() {
         let chain = &chains_of(3)[0];
-        let e = first_flips_chain(chain, &[0.1; 6], &[0.0, 0.0, 0.0, 1e200, 0.0, 0.0], 100, 0.01, None, Path::best(), &go())
+        let e = first_flips_chain(chain, &[0.1; 6], &[0.0, 0.0, 0.0, 1e200, 0.0, 0.0], 100, 0.01, None, None, Path::best(), &go())
             .unwrap_err();
         assert!(matches!(e, Error::Integration { .. }), "{e}");
     }

@@ -7,7 +7,7 @@ pub mod indicators;
 
 use crate::dynamics::general::{Load, TANGENT_SCRATCH};
 use crate::dynamics::system::{singular, ChainSystem, Form, OdeSystem, NON_FINITE};
-use crate::dynamics::torque::{Builtin, TorqueSource};
+use crate::dynamics::torque::{Builtin, Timed, TorqueSource};
 use crate::dynamics::Workspace;
 use crate::error::{Error, Result};
 use crate::integrators::Rk4;
@@ -240,15 +240,15 @@ pub fn first_flips(
     watch: &Watch,
 ) -> Result<Vec<f64>> {
     let steps = check_flips(chain, theta0, omega0, t_max, dt, link)?;
-    // The kernels are the undriven chain's (the ideal double pendulum's own, any other in lanes,
-    // damping, friction and a cart included); a torque takes the general path.
-    if matches!(torque, Builtin::None) {
-        if let Some(path) = flipkernel::requested()? {
-            return match (chain.n(), chain.is_ideal()) {
-                (2, true) if !flipkernel::generic() => flipkernel::first_flips_double(chain, theta0, omega0, steps, dt, link, path, watch),
-                _ => flipkernel::first_flips_chain(chain, theta0, omega0, steps, dt, link, path, watch),
-            };
-        }
+    // The kernels: the ideal undriven double pendulum's own, any other chain in lanes (damping,
+    // friction, a cart and a built-in torque included).
+    if let Some(path) = flipkernel::requested()? {
+        let undriven = matches!(torque, Builtin::None);
+        let drive = Timed { builtin: torque.clone(), joint: false };
+        return match (chain.n(), chain.is_ideal()) {
+            (2, true) if undriven && !flipkernel::generic() => flipkernel::first_flips_double(chain, theta0, omega0, steps, dt, link, path, watch),
+            _ => flipkernel::first_flips_chain(chain, theta0, omega0, steps, dt, link, (!undriven).then_some(&drive), path, watch),
+        };
     }
     first_flips_scalar(chain, theta0, omega0, t_max, dt, link, torque, watch)
 }

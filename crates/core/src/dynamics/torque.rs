@@ -196,6 +196,46 @@ impl Timed {
     }
 }
 
+impl Timed {
+    /// The generalized torques of every lane at its time `at[i]` into `out` (`out[link][i]`):
+    /// a sinusoid through the lanes' own `sin` (the lanes' round-off, as their dynamics').
+    #[inline(always)]
+    pub fn lanes(&self, at: &crate::trig::lanes::Lane, out: &mut [crate::trig::lanes::Lane]) {
+        use crate::trig::lanes::{sin_cos, LANES};
+        match &self.builtin {
+            Builtin::Sinusoid { amplitude, frequency, phase, offset } => {
+                for (a, o) in out.iter_mut().enumerate() {
+                    let arg: crate::trig::lanes::Lane = std::array::from_fn(|i| frequency[a] * at[i] + phase[a]);
+                    let (sin, _) = sin_cos(&arg);
+                    for i in 0..LANES {
+                        o[i] = offset[a] + amplitude[a] * sin[i];
+                    }
+                }
+                if self.joint {
+                    for a in 0..out.len().saturating_sub(1) {
+                        for i in 0..LANES {
+                            out[a][i] -= out[a + 1][i];
+                        }
+                    }
+                }
+            }
+            _ => {
+                // Lanes at the same time (rk4's) share one evaluation.
+                self.lane(at[0], out, 0);
+                for i in 1..LANES {
+                    if at[i] == at[0] {
+                        for o in out.iter_mut() {
+                            o[i] = o[0];
+                        }
+                    } else {
+                        self.lane(at[i], out, i);
+                    }
+                }
+            }
+        }
+    }
+}
+
 impl TorqueSource for Timed {
     fn active(&self) -> bool {
         self.builtin.active()

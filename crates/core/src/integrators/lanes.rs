@@ -52,17 +52,7 @@ impl LaneSystem for ChainLanes<'_> {
         let mut drive_power = None;
         match self.drive {
             Some(drive) => {
-                // Lanes at the same time (rk4's) share one evaluation.
-                drive.lane(at[0], self.q, 0);
-                for i in 1..LANES {
-                    if at[i] == at[0] {
-                        for q in self.q.iter_mut() {
-                            q[i] = q[0];
-                        }
-                    } else {
-                        drive.lane(at[i], self.q, i);
-                    }
-                }
+                drive.lanes(at, self.q);
                 let mut p = [0.0; LANES];
                 for (q, w) in self.q.iter().zip(omega) {
                     for i in 0..LANES {
@@ -177,13 +167,26 @@ impl Rk4Lanes {
         active: &Lane,
         sys: &mut impl LaneSystem,
     ) -> std::result::Result<[bool; LANES], (usize, LaneSingular)> {
+        self.step_system_at(y, &[t; LANES], dt, active, sys)
+    }
+
+    /// [`Rk4Lanes::step_system`] from a time of each lane's own.
+    #[inline(always)]
+    pub fn step_system_at(
+        &mut self,
+        y: &mut [Lane],
+        t: &Lane,
+        dt: f64,
+        active: &Lane,
+        sys: &mut impl LaneSystem,
+    ) -> std::result::Result<[bool; LANES], (usize, LaneSingular)> {
         let half = 0.5 * dt;
         let Rk4Lanes { k, tmp, scratch, .. } = self;
         // Loops over whole lanes by iterators (no bounds checks), so they vectorise.
         for stage in 0..4 {
             {
                 let src: &[Lane] = if stage == 0 { &y[..] } else { &tmp[..] };
-                let at = [[t, t + half, t + half, t + dt][stage]; LANES];
+                let at: Lane = std::array::from_fn(|i| [t[i], t[i] + half, t[i] + half, t[i] + dt][stage]);
                 sys.rates(&at, src, &mut k[stage], scratch, active).map_err(|s| (stage, s))?;
             }
             if stage < 3 {
