@@ -56,3 +56,16 @@ def test_damping_makes_megno_negative_in_lanes_too():
     chain = mp.Chain([1.0, 1.0], [1.0, 1.0], damping=0.5)
     th0 = np.array([[2.0, 2.5], [0.3, 0.2], [1.0, -0.5]])
     assert np.all(mp.megno(chain, th0, np.zeros_like(th0), t_end=100.0) < 0)
+
+
+@pytest.mark.parametrize("key", ["double, damped with friction", "triple rods, damped"])
+@pytest.mark.parametrize("indicator", ["megno", "fli", "sali"])
+def test_indicators_of_driven_chains_agree_with_the_per_state_route(monkeypatch, key, indicator):
+    # A built-in torque of time rides along in the lanes too (it has no tangent of its own).
+    chain = LOSSY[key]
+    torque = mp.Sinusoid(np.full(chain.n, 3.0), 2.0 + np.arange(chain.n), offset=0.5)
+    th0 = np.random.default_rng(9).uniform(-2.0, 2.0, (19, chain.n))
+    run = lambda torque: mp.indicator(chain, th0, np.zeros_like(th0), 1.0, indicator, dt=0.005, torque=torque)
+    fast, slow = _both(monkeypatch, "MULTIPENDULUM_LANES", lambda: run(torque))
+    np.testing.assert_allclose(fast, slow, rtol=1e-11, atol=1e-12)
+    assert np.max(np.abs(fast - run(None))) > 1e-3  # the torque matters

@@ -12,7 +12,7 @@
 //! error that route reports.
 use super::indicators::{orthonormalise, run, Indicator};
 use crate::dynamics::lanes::{accelerations, add_loss_tangent, add_losses, tangent, LaneScratch};
-use crate::dynamics::torque::{Builtin, TorqueSource};
+use crate::dynamics::torque::{Builtin, Timed, TorqueSource};
 use crate::error::Result;
 use crate::dynamics::lanes::LaneSingular;
 use crate::integrators::lanes::{LaneSystem, Rk4Lanes};
@@ -27,8 +27,8 @@ const CHUNK: usize = 8 * LANES;
 /// Whether a batch of indicators goes through the lanes: an undriven chain on a fixed pivot
 /// (damping and friction included), unless
 /// `MULTIPENDULUM_LANES` asks for the per-state route. `None`: the per-state route.
-pub fn route(chain: &Chain, torque: &Builtin) -> Result<Option<Path>> {
-    if chain.cart().is_some() || torque.active() {
+pub fn route(chain: &Chain) -> Result<Option<Path>> {
+    if chain.cart().is_some() {
         return Ok(None);
     }
     crate::run::bank::requested()
@@ -45,13 +45,14 @@ pub fn indicators(
     steps: u64,
     dt: f64,
     which: Indicator,
+    torque: &Builtin,
     start: &[f64],
     deviations: Option<&[f64]>,
     path: Path,
     watch: &Watch,
 ) -> Result<Vec<f64>> {
     let n = chain.n();
-    let job = Job { chain, steps, dt, which, start, deviations, watch };
+    let job = Job::new(chain, torque, steps, dt, which, start, deviations, watch);
     let parts: Vec<Vec<f64>> = theta0
         .par_chunks(n * CHUNK)
         .zip(omega0.par_chunks(n * CHUNK))
@@ -74,12 +75,13 @@ pub fn indicator(
     steps: u64,
     dt: f64,
     which: Indicator,
+    torque: &Builtin,
     start: &[f64],
     path: Path,
     watch: &Watch,
     observe: &mut dyn FnMut(u64, f64),
 ) -> Result<Option<f64>> {
-    let job = Job { chain, steps, dt, which, start, deviations: None, watch };
+    let job = Job::new(chain, torque, steps, dt, which, start, None, watch);
     let mut group = Group::new(chain, which);
     let mut history = |step: u64, v: f64| {
         if step % 64 == 0 {
@@ -101,6 +103,9 @@ pub fn indicator(
 /// What every group shares.
 struct Job<'a> {
     chain: &'a Chain,
+    /// A built-in generalized torque of time (none: undriven).
+    drive: Option<Timed>,
+    torque: &'a Builtin,
     steps: u64,
     dt: f64,
     which: Indicator,
@@ -109,7 +114,13 @@ struct Job<'a> {
     watch: &'a Watch,
 }
 
-impl Job<'_> {
+impl<'a> Job<'a> {
+    #[allow(clippy::too_many_arguments)]
+    fn new(chain: &'a Chain, torque: &'a Builtin, steps: u64, dt: f64, which: Indicator, start: &'a [f64], deviations: Option<&'a [f64]>, watch: &'a Watch) -> Self {
+        let drive = torque.active().then(|| Timed { builtin: torque.clone(), joint: false });
+        Job { chain, drive, torque, steps, dt, which, start, deviations, watch }
+    }
+
     fn chunk_on(&self, path: Path, th: &[f64], om: &[f64]) -> Result<Vec<f64>> {
         match path {
             // SAFETY: the path was checked available when chosen (`bank::requested`).
@@ -149,7 +160,7 @@ impl Job<'_> {
                     // Some state failed: the per-state route gives the values or its error.
                     for j in 0..count {
                         let row = (&th[n * j..n * (j + 1)], &om[n * j..n * (j + 1)]);
-                        let value = run(self.chain, row.0, row.1, self.steps, self.dt, self.which, &Builtin::None, self.deviations, self.watch, false, &mut |_, _| {})?;
+                        let value = run(self.chain, row.0, row.1, self.steps, self.dt, self.which, self.torque, self.deviations, self.watch, false, &mut |_, _| {})?;
                         out.push(value);
                     }
                 }
@@ -167,6 +178,8 @@ struct TangentLanes<'a> {
     k: usize,
     megno: bool,
     tau: &'a [Lane],
+    /// Torques of time, in place of `tau` (a time-only torque has no tangent of its own).
+    drive: Option<&'a Timed>,
     /// A lossy chain's forces and their tangent.
     q: &'a mut [Lane],
     dq: &'a mut [Lane],
@@ -180,12 +193,19 @@ impl LaneSystem for TangentLanes<'_> {
         let (head, tail) = dst.split_at_mut(d);
         head[..n].copy_from_slice(&src[n..d]);
         let lossy = chain.lossy_joints();
-        if lossy {
-            // The joints' losses as generalized forces, and their own tangent per vector.
-            self.q.copy_from_slice(self.tau);
-            add_losses(chain, &src[n..d], self.q, &mut [0.0; LANES]);
-        }
-        let forces: &[Lane] = if lossy { self.q } else { self.tau };
+        let forces: &[Lane] = if lossy || self.drive.is_some() {
+            match self.drive {
+                Some(drive) => drive.lanes(at, self.q),
+                None => self.q.copy_from_slice(self.tau),
+            }
+            if lossy {
+                // The joints' losses as generalized forces, and their own tangent per vector.
+                add_losses(chain, &src[n..d], self.q, &mut [0.0; LANES]);
+            }
+            self.q
+        } else {
+            self.tau
+        };
         accelerations(chain, &src[..n], &src[n..d], forces, &mut head[n..], scratch, active)?;
         for j in 0..k {
             let v = &src[d * (j + 1)..d * (j + 2)];
@@ -287,7 +307,7 @@ impl Group {
             // Every step: a relaxed load against eight states' step (long chains take long).
             job.watch.check(t)?;
             let h = job.dt;
-            let mut sys = TangentLanes { chain, k, megno, tau, q: &mut q[..], dq: &mut dq[..] };
+            let mut sys = TangentLanes { chain, k, megno, tau, drive: job.drive.as_ref(), q: &mut q[..], dq: &mut dq[..] };
             let stepped = rk.step_system(y, t, h, &active, &mut sys);
             match stepped {
                 Ok(nonfinite) if !nonfinite.iter().any(|&b| b) => {}
@@ -420,10 +440,36 @@ mod tests {
 
     /// The per-state route, row by row.
     fn reference(chain: &Chain, th: &[f64], om: &[f64], steps: u64, dt: f64, which: Indicator) -> Vec<f64> {
+        reference_driven(chain, th, om, steps, dt, which, &Builtin::None)
+    }
+
+    /// The same under a torque.
+    fn reference_driven(chain: &Chain, th: &[f64], om: &[f64], steps: u64, dt: f64, which: Indicator, torque: &Builtin) -> Vec<f64> {
         let n = chain.n();
         (0..th.len() / n)
-            .map(|i| run(chain, &th[n * i..n * (i + 1)], &om[n * i..n * (i + 1)], steps, dt, which, &Builtin::None, None, &Watch::new(), false, &mut |_, _| {}).unwrap())
+            .map(|i| run(chain, &th[n * i..n * (i + 1)], &om[n * i..n * (i + 1)], steps, dt, which, torque, None, &Watch::new(), false, &mut |_, _| {}).unwrap())
             .collect()
+    }
+
+    #[test]
+    fn driven_lanes_agree_with_the_per_state_route() {
+        let chains = chains();
+        for chain in [&chains[1], &chains[2], &chains[4]] {
+            let n = chain.n();
+            let torque = Builtin::sinusoid(n, vec![3.0; n], (0..n).map(|a| 2.0 + a as f64).collect(), vec![0.2; n], vec![0.5; n]).unwrap();
+            let (th, om) = rows(n, 11);
+            let (steps, dt) = (150, 0.005);
+            for which in [Indicator::Megno, Indicator::Fli, Indicator::Sali, Indicator::Gali(2)] {
+                let start = super::super::indicators::initial_deviations(2 * n, which.vectors());
+                let got = indicators(chain, &th, &om, steps, dt, which, &torque, &start, None, Path::best(), &Watch::new()).unwrap();
+                let want = reference_driven(chain, &th, &om, steps, dt, which, &torque);
+                let undriven = reference(chain, &th, &om, steps, dt, which);
+                assert!(want.iter().zip(&undriven).any(|(a, b)| (a - b).abs() > 1e-3 * (1.0 + b.abs())), "the torque matters");
+                for (i, (g, w)) in got.iter().zip(&want).enumerate() {
+                    assert!((g - w).abs() <= 1e-12 * (1.0 + w.abs()), "N = {n}, {which:?}, row {i}: {g} vs {w}");
+                }
+            }
+        }
     }
 
     #[test]
@@ -434,7 +480,7 @@ mod tests {
             let (steps, dt) = (150, 0.005);
             for which in every(n) {
                 let start = super::super::indicators::initial_deviations(2 * n, which.vectors());
-                let got = indicators(&chain, &th, &om, steps, dt, which, &start, None, Path::best(), &Watch::new()).unwrap();
+                let got = indicators(&chain, &th, &om, steps, dt, which, &Builtin::None, &start, None, Path::best(), &Watch::new()).unwrap();
                 let want = reference(&chain, &th, &om, steps, dt, which);
                 for (i, (g, w)) in got.iter().zip(&want).enumerate() {
                     assert!((g - w).abs() <= 1e-12 * (1.0 + w.abs()), "N = {n}, {which:?}, row {i}: {g} vs {w}");
@@ -473,7 +519,7 @@ mod tests {
         let chain = &chains()[2];
         let (th, om) = rows(3, 70);
         let start = super::super::indicators::initial_deviations(6, 1);
-        let go = |th: &[f64], om: &[f64], path| indicators(chain, th, om, 100, 0.01, Indicator::Megno, &start, None, path, &Watch::new()).unwrap();
+        let go = |th: &[f64], om: &[f64], path| indicators(chain, th, om, 100, 0.01, Indicator::Megno, &Builtin::None, &start, None, path, &Watch::new()).unwrap();
         let reference = go(&th, &om, Path::Portable);
         for path in Path::ALL.into_iter().filter(|p| p.available()) {
             assert_eq!(go(&th, &om, path), reference, "{path:?}");
@@ -487,7 +533,7 @@ mod tests {
         let chain = &chains()[1];
         let (th, mut om) = rows(2, 10);
         let start = super::super::indicators::initial_deviations(4, 1);
-        let go = |th: &[f64], om: &[f64]| indicators(chain, th, om, 200, 0.01, Indicator::Fli, &start, None, Path::best(), &Watch::new());
+        let go = |th: &[f64], om: &[f64]| indicators(chain, th, om, 200, 0.01, Indicator::Fli, &Builtin::None, &start, None, Path::best(), &Watch::new());
         om[2 * 3] = 1e155; // row 3 overflows
         let e = go(&th, &om).unwrap_err();
         let scalar = run(chain, &th[6..8], &om[6..8], 200, 0.01, Indicator::Fli, &Builtin::None, None, &Watch::new(), false, &mut |_, _| {}).unwrap_err();
@@ -496,7 +542,7 @@ mod tests {
         // A group the lanes cannot finish (here: started from a zero vector, which collapses)
         // takes the per-state route, whose values it returns.
         let dev = [1.0, 0.0, 0.0, 0.0];
-        let got = indicators(chain, &th[..4], &om[..4], 10, 0.01, Indicator::Fli, &[0.0; 4], Some(&dev), Path::best(), &Watch::new()).unwrap();
+        let got = indicators(chain, &th[..4], &om[..4], 10, 0.01, Indicator::Fli, &Builtin::None, &[0.0; 4], Some(&dev), Path::best(), &Watch::new()).unwrap();
         for (i, g) in got.iter().enumerate() {
             let want = run(chain, &th[2 * i..2 * i + 2], &om[2 * i..2 * i + 2], 10, 0.01, Indicator::Fli, &Builtin::None, Some(&dev), &Watch::new(), false, &mut |_, _| {}).unwrap();
             assert_eq!(g.to_bits(), want.to_bits());

@@ -222,11 +222,11 @@ pub fn indicator(
     };
     // In lanes where a batch would be, so that a state's value is its value in any batch.
     let mut value = None;
-    if let Some(path) = super::indicator_lanes::route(chain, torque)? {
+    if let Some(path) = super::indicator_lanes::route(chain)? {
         chain.check_state("theta0", theta0)?;
         chain.check_state("omega0", omega0)?;
         let start = start_vectors(2 * chain.n(), which.vectors(), deviations)?;
-        value = super::indicator_lanes::indicator(chain, theta0, omega0, steps, dt, which, &start, path, watch, &mut |step, v| keep(&mut series, step, v))?;
+        value = super::indicator_lanes::indicator(chain, theta0, omega0, steps, dt, which, torque, &start, path, watch, &mut |step, v| keep(&mut series, step, v))?;
     }
     let value = match value {
         Some(v) => v,
@@ -261,13 +261,13 @@ pub fn indicators(
     if omega0.len() != theta0.len() {
         return Err(Error::input(format!("theta0 and omega0 must both have shape (B, {n})")));
     }
-    if let Some(path) = super::indicator_lanes::route(chain, torque)? {
+    if let Some(path) = super::indicator_lanes::route(chain)? {
         for i in 0..b {
             chain.check_state("theta0", &theta0[i * n..(i + 1) * n])?;
             chain.check_state("omega0", &omega0[i * n..(i + 1) * n])?;
         }
         let start = start_vectors(2 * n, which.vectors(), deviations)?;
-        return super::indicator_lanes::indicators(chain, theta0, omega0, steps, dt, which, &start, deviations, path, watch);
+        return super::indicator_lanes::indicators(chain, theta0, omega0, steps, dt, which, torque, &start, deviations, path, watch);
     }
     let rows: Vec<Result<f64>> = (0..b)
         .into_par_iter()
