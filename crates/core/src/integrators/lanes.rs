@@ -1,9 +1,11 @@
-//! [`Rk4`](super::Rk4) in SIMD lanes: eight states of one ideal chain stepped at once on
-//! [`crate::dynamics::lanes`]' accelerations, the step's product-sums fused by explicit `mul_add`
-//! as the flip kernel's (one correctly rounded operation on every path, so the AVX-512, AVX2 and
-//! portable builds give the same bits, and a lane's bits never depend on the other lanes). Used
-//! by the steppers' bank (`run::bank`) and by the flip times of chains other than the double
-//! pendulum (`chaos::flipkernel`); both compile it inside their `#[target_feature]` wrappers.
+//! [`Rk4`](super::Rk4) in SIMD lanes: eight states of one chain (losses, a cart and a built-in
+//! torque included: [`ChainLanes`]; or any other [`LaneSystem`], such as the tangent equations)
+//! stepped at once on [`crate::dynamics::lanes`]' accelerations, the step's product-sums fused by
+//! explicit `mul_add` as the flip kernel's (one correctly rounded operation on every path, so the
+//! AVX-512, AVX2 and portable builds give the same bits, and a lane's bits never depend on the
+//! other lanes). Used by the steppers' bank (`run::bank`), the flip times of chains other than the
+//! double pendulum (`chaos::flipkernel`), ensembles and chaos indicators; each compiles it inside
+//! its `#[target_feature]` wrappers.
 use crate::dynamics::lanes::{accelerations, accelerations_cart, add_losses, CartLanes, LaneScratch, LaneSingular};
 use crate::dynamics::torque::Timed;
 use crate::model::Chain;
