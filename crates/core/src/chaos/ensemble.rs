@@ -25,7 +25,7 @@ use crate::dynamics::Workspace;
 use crate::error::{Error, Result};
 use crate::dynamics::system::Form;
 use crate::dynamics::torque::{Builtin, Timed};
-use crate::integrators::dop853_lanes::{Dop853Lanes, StartFailure};
+use crate::integrators::dop853_lanes::{mask, Dop853Lanes, StartFailure};
 use crate::integrators::lanes::{ChainLanes, Rk4Lanes};
 use crate::integrators::{Controller, Decision, Method};
 use crate::model::Chain;
@@ -359,7 +359,7 @@ fn dop853_rows(rows: &mut Rows, t_end: f64, settings: &Settings, watch: &Watch) 
             last[j] = t[j] + h[j] >= t_end;
             h_try[j] = if last[j] { t_end - t[j] } else { h[j] };
         }
-        let active = running.map(|r| if r { 1.0 } else { 0.0 });
+        let active = mask(&running);
         let err = dp.trial(&mut sys, &t, &y, &h_try, &mut y_new, &active);
         let (mut accepted, mut t_new) = ([false; LANES], t);
         for j in (0..LANES).filter(|&j| running[j]) {

@@ -53,10 +53,7 @@ pub fn accelerations(
     s: &mut LaneScratch,
     active: &Lane,
 ) -> Result<(), LaneSingular> {
-    if chain.n() == 2 {
-        return double(chain, theta, omega, tau, out, s, active, None);
-    }
-    recursion(chain, theta, omega, tau, out, s, active, None)
+    accelerations_on(chain, theta, omega, tau, out, s, active, None)
 }
 
 /// The cart's input and output in lanes: the horizontal force on it (the applied force less its
@@ -66,13 +63,13 @@ pub struct CartLanes<'a> {
     pub x_ddot: &'a mut Lane,
 }
 
-/// [`accelerations`] of a chain on a cart (the base sliding along x, the cart first among the
-/// coordinates): `theta_ddot` into `out` and the cart's acceleration into `cart.x_ddot`, as
-/// [`Chain::accelerations_general`] with a cart: the elimination's articulated inertia at the
-/// base closes the cart's row, the substitution starts from its acceleration.
+/// [`accelerations`], of a chain on a cart if `cart` is given (the base sliding along x, the
+/// cart first among the coordinates): `theta_ddot` into `out` and the cart's acceleration into
+/// `cart.x_ddot`, as [`Chain::accelerations_general`] with a cart: the elimination's articulated
+/// inertia at the base closes the cart's row, the substitution starts from its acceleration.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-pub fn accelerations_cart(
+pub fn accelerations_on(
     chain: &Chain,
     theta: &[Lane],
     omega: &[Lane],
@@ -80,12 +77,12 @@ pub fn accelerations_cart(
     out: &mut [Lane],
     s: &mut LaneScratch,
     active: &Lane,
-    cart: CartLanes,
+    cart: Option<CartLanes>,
 ) -> Result<(), LaneSingular> {
     if chain.n() == 2 {
-        return double(chain, theta, omega, tau, out, s, active, Some(cart));
+        return double(chain, theta, omega, tau, out, s, active, cart);
     }
-    recursion(chain, theta, omega, tau, out, s, active, Some(cart))
+    recursion(chain, theta, omega, tau, out, s, active, cart)
 }
 
 /// Fold the lanes that failed a test (active ones only) into `bad`; whether any did.
@@ -670,7 +667,7 @@ mod tests {
             add_losses(&chain, &om, &mut q, &mut power);
             let force: Lane = std::array::from_fn(|i| f[i] - 0.2 * v[i]);
             let (mut acc, mut xdd, mut scratch) = (vec![[0.0; LANES]; n], [0.0; LANES], LaneScratch::new(n));
-            accelerations_cart(&chain, &th, &om, &q, &mut acc, &mut scratch, &[1.0; LANES], CartLanes { force: &force, x_ddot: &mut xdd }).unwrap();
+            accelerations_on(&chain, &th, &om, &q, &mut acc, &mut scratch, &[1.0; LANES], Some(CartLanes { force: &force, x_ddot: &mut xdd })).unwrap();
             let (mut kin, mut en) = ([0.0; LANES], [0.0; LANES]);
             energies_on(&chain, &th, &om, Some(&v), &mut kin, &mut en);
             let mut ws = Workspace::new(n);

@@ -3,6 +3,7 @@
 //! (acting between link i-1 and link i, the robotics convention) and maps them to
 //! `tau_i = u_i - u_{i+1}`.
 use crate::error::{check_finite, Error, Result};
+use crate::trig::lanes::{sin_cos, Lane, LANES};
 
 pub trait TorqueSource {
     /// `false` for the undriven chain: the integrators then skip the call and the work integral.
@@ -169,7 +170,7 @@ fn joint_to_generalized(out: &mut [f64]) {
 }
 
 /// A torque of time alone evaluated in Rust: a built-in, generalized or in the joint-motor
-/// convention (`joint`). What the SIMD lanes take (`Timed::lane`), as runs do (it is a
+/// convention (`joint`). What the SIMD lanes take ([`Timed::lanes`]), as runs do (it is a
 /// [`TorqueSource`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Timed {
@@ -178,58 +179,38 @@ pub struct Timed {
 }
 
 impl Timed {
-    /// The generalized torques at time `t` into lane `i` of `out` (`out[link][i]`).
-    #[inline]
-    pub fn lane<const L: usize>(&self, t: f64, out: &mut [[f64; L]], i: usize) {
-        if let Builtin::None = self.builtin {
-            for o in out.iter_mut() {
-                o[i] = 0.0;
-            }
-            return;
-        }
-        self.builtin.each(t, |a, v| out[a][i] = v);
-        if self.joint {
-            for a in 0..out.len().saturating_sub(1) {
-                out[a][i] -= out[a + 1][i];
-            }
-        }
-    }
-}
-
-impl Timed {
     /// The generalized torques of every lane at its time `at[i]` into `out` (`out[link][i]`):
     /// a sinusoid through the lanes' own `sin` (the lanes' round-off, as their dynamics').
     #[inline(always)]
-    pub fn lanes(&self, at: &crate::trig::lanes::Lane, out: &mut [crate::trig::lanes::Lane]) {
-        use crate::trig::lanes::{sin_cos, LANES};
+    pub fn lanes(&self, at: &Lane, out: &mut [Lane]) {
         match &self.builtin {
             Builtin::Sinusoid { amplitude, frequency, phase, offset } => {
                 for (a, o) in out.iter_mut().enumerate() {
-                    let arg: crate::trig::lanes::Lane = std::array::from_fn(|i| frequency[a] * at[i] + phase[a]);
+                    let arg: Lane = std::array::from_fn(|i| frequency[a] * at[i] + phase[a]);
                     let (sin, _) = sin_cos(&arg);
                     for i in 0..LANES {
                         o[i] = offset[a] + amplitude[a] * sin[i];
                     }
                 }
-                if self.joint {
-                    for a in 0..out.len().saturating_sub(1) {
-                        for i in 0..LANES {
-                            out[a][i] -= out[a + 1][i];
-                        }
-                    }
-                }
             }
-            _ => {
-                // Lanes at the same time (rk4's) share one evaluation.
-                self.lane(at[0], out, 0);
-                for i in 1..LANES {
-                    if at[i] == at[0] {
+            Builtin::None => out.fill([0.0; LANES]),
+            builtin => {
+                for i in 0..LANES {
+                    // Lanes at the same time (rk4's) share one evaluation.
+                    if i > 0 && at[i] == at[0] {
                         for o in out.iter_mut() {
                             o[i] = o[0];
                         }
                     } else {
-                        self.lane(at[i], out, i);
+                        builtin.each(at[i], |a, v| out[a][i] = v);
                     }
+                }
+            }
+        }
+        if self.joint {
+            for a in 0..out.len().saturating_sub(1) {
+                for i in 0..LANES {
+                    out[a][i] -= out[a + 1][i];
                 }
             }
         }

@@ -84,7 +84,7 @@ impl Dop853 {
     pub fn first_step<S: OdeSystem>(&mut self, sys: &mut S, t: f64, y: &[f64], span: f64) -> Result<f64> {
         let (d, e) = (self.dim, self.controlled);
         let scale = |m: usize| self.atol + y[m].abs() * self.rtol;
-        let rms = |v: &dyn Fn(usize) -> f64| ((0..e).map(|m| v(m).powi(2)).sum::<f64>() / e as f64).sqrt();
+        let rms = |v: &dyn Fn(usize) -> f64| rms(e, v);
         let f0 = self.k[..d].to_vec();
         let d0 = rms(&|m| y[m] / scale(m));
         let d1 = rms(&|m| f0[m] / scale(m));
@@ -199,6 +199,17 @@ impl Dop853 {
 #[inline]
 pub(super) fn combined_error(h: f64, e5: f64, e3: f64, count: usize) -> f64 {
     if e5 == 0.0 && e3 == 0.0 { 0.0 } else { h.abs() * e5 / ((e5 + 0.01 * e3) * count as f64).sqrt() }
+}
+
+/// The root mean square of `v(m)` over the first `count` components (the first step's scaled
+/// sizes).
+#[inline]
+pub(super) fn rms(count: usize, v: impl Fn(usize) -> f64) -> f64 {
+    let mut sum = 0.0;
+    for m in 0..count {
+        sum += v(m).powi(2);
+    }
+    (sum / count as f64).sqrt()
 }
 
 /// Hairer's first trial step from the scaled sizes of the state (`d0`) and its rate (`d1`).

@@ -6,7 +6,7 @@
 //! first step, the error norm and the dense output are the scalar method's, per lane (its
 //! [`super::Controller`] and helpers), so a lane follows the per-trajectory run's steps to
 //! round-off. Used by `chaos::ensemble`, inside its `#[target_feature]` wrappers.
-use super::dop853::{combined_error, first_guess, first_step_from, increment, interpolant, STAGES};
+use super::dop853::{combined_error, first_guess, first_step_from, increment, interpolant, rms, STAGES};
 use super::dop853_tableau::{A, B, C, E3, E5};
 use super::lanes::LaneSystem;
 use crate::dynamics::lanes::{LaneScratch, LaneSingular};
@@ -47,7 +47,7 @@ fn any(lanes: &[bool; LANES]) -> bool {
 
 /// The lanes set as an activity mask (`1` or `0`).
 #[inline(always)]
-fn mask(lanes: &[bool; LANES]) -> Lane {
+pub fn mask(lanes: &[bool; LANES]) -> Lane {
     lanes.map(|b| if b { 1.0 } else { 0.0 })
 }
 
@@ -116,13 +116,7 @@ impl Dop853Lanes {
         // Per lane, as the scalar method: the scaled sizes, then explicit Euler trials shrunk
         // until their rates are finite and regular.
         let (atol, rtol) = (self.atol, self.rtol);
-        let rms = |v: &dyn Fn(usize) -> f64| {
-            let mut sum = 0.0;
-            for m in 0..e {
-                sum += v(m).powi(2);
-            }
-            (sum / e as f64).sqrt()
-        };
+        let rms = |v: &dyn Fn(usize) -> f64| rms(e, v);
         let mut h0 = [0.0; LANES];
         let mut d1s = [0.0; LANES];
         for i in (0..LANES).filter(|&i| fresh[i]) {

@@ -6,7 +6,7 @@
 //! other lanes). Used by the steppers' bank (`run::bank`), the flip times of chains other than the
 //! double pendulum (`chaos::flipkernel`), ensembles and chaos indicators; each compiles it inside
 //! its `#[target_feature]` wrappers.
-use crate::dynamics::lanes::{accelerations, accelerations_cart, add_losses, CartLanes, LaneScratch, LaneSingular};
+use crate::dynamics::lanes::{accelerations, accelerations_on, add_losses, CartLanes, LaneScratch, LaneSingular};
 use crate::dynamics::torque::Timed;
 use crate::model::Chain;
 use crate::trig::lanes::{Lane, LANES};
@@ -81,7 +81,7 @@ impl LaneSystem for ChainLanes<'_> {
                 }
                 let (acc, rest) = tail.split_at_mut(n);
                 let mut x_ddot = [0.0; LANES];
-                accelerations_cart(chain, theta, omega, self.q, acc, scratch, active, CartLanes { force: &force, x_ddot: &mut x_ddot })?;
+                accelerations_on(chain, theta, omega, self.q, acc, scratch, active, Some(CartLanes { force: &force, x_ddot: &mut x_ddot }))?;
                 rest[0] = v;
                 rest[1] = x_ddot;
                 slot += 2;
