@@ -210,7 +210,7 @@ impl Chain {
     ) -> Result<Rates, Singular> {
         let (d1, d2, h1, h2) = (self.diag[0], self.diag[1], self.h[0], self.h[1]);
         let k = self.lengths[0] * h2;
-        let ((s1, c1), (s2, c2)) = (crate::trig::sin_cos(theta[0]), crate::trig::sin_cos(theta[1]));
+        let [(s1, c1), (s2, c2)] = crate::trig::lanes::sin_cos_pair(theta[0], theta[1]);
         (ws.sin[0], ws.cos[0], ws.sin[1], ws.cos[1]) = (s1, c1, s2, c2);
         let (s12, c12) = (s1 * c2 - c1 * s2, c1 * c2 + s1 * s2);
         let [gx, gy] = load.gravity;

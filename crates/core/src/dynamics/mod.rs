@@ -159,7 +159,7 @@ impl Chain {
     fn accelerations_double(&self, theta: &[f64], omega: &[f64], tau: &[f64], out: &mut [f64]) -> Result<(), Singular> {
         let (d1, d2, h1, h2, g) = (self.diag[0], self.diag[1], self.h[0], self.h[1], self.g);
         let k = self.lengths[0] * h2;
-        let ((s1, c1), (s2, c2)) = (sin_cos(theta[0]), sin_cos(theta[1]));
+        let [(s1, c1), (s2, c2)] = crate::trig::lanes::sin_cos_pair(theta[0], theta[1]);
         let (s12, c12) = (s1 * c2 - c1 * s2, c1 * c2 + s1 * s2);
         let r1 = tau[0] - g * h1 * s1 - k * s12 * omega[1] * omega[1];
         let r2 = tau[1] - g * h2 * s2 + k * s12 * omega[0] * omega[0];
