@@ -159,43 +159,57 @@ impl Chain {
             su += w2l * s;
         }
         let pull = if self.cart.is_some() { (0..n).map(|a| h[a] * ws.sin[a] * omega[a] * omega[a]).sum() } else { 0.0 };
-        let mut losses = 0.0;
-        if self.lossy_joints() {
-            // Q_a = u_a - u_{a+1}, the joint below's torque computed once and carried.
-            let mut here = self.joint_loss(0, omega[0]);
-            losses -= here * omega[0];
-            for a in 0..n {
-                let below = if a + 1 < n {
-                    let w = omega[a + 1] - omega[a];
-                    let u = self.joint_loss(a + 1, w);
-                    losses -= u * w;
-                    u
-                } else {
-                    0.0
-                };
-                out[a] += here - below;
-                here = below;
-            }
-        }
         let (mut cd, mut sd) = (0.0, 0.0);
-        let art = self.eliminate(ws, out, |a, c, s| {
+        let below = |a: usize, c: f64, s: f64| {
             let e = -l[a] * (s * cd - c * sd);
             let w2h = omega[a] * omega[a] * h[a];
             cd += w2h * c;
             sd += w2h * s;
             e
-        })?;
+        };
+        let lossy = self.lossy_joints();
+        let art = if lossy {
+            // Q_a = u_a - u_{a+1} from the free end, the joint below's torque carried; each
+            // joint's power kept for the sum from the base that the forward pass takes.
+            let mut power = std::mem::take(&mut ws.power);
+            let mut next = 0.0;
+            let art = self.eliminate_loaded(
+                ws,
+                out,
+                |a, r| {
+                    let w = if a > 0 { omega[a] - omega[a - 1] } else { omega[0] };
+                    let u = self.joint_loss(a, w);
+                    power[a] = u * w;
+                    let q = u - next;
+                    next = u;
+                    r + q
+                },
+                below,
+            );
+            ws.power = power;
+            art?
+        } else {
+            self.eliminate(ws, out, below)?
+        };
         let x_ddot = match self.cart {
             Some(cart) => (load.cart_force - cart.damping * cart_v + pull - art.wx) / self.cart_inertia(art)?,
             None => 0.0,
         };
-        self.substitute_from(ws, out, x_ddot, |_, _, _, _| {});
+        let mut losses = 0.0;
+        if lossy {
+            let power = std::mem::take(&mut ws.power);
+            self.substitute_from(ws, out, x_ddot, |a, _, _, _| losses -= power[a]);
+            ws.power = power;
+        } else {
+            self.substitute_from(ws, out, x_ddot, |_, _, _, _| {});
+        }
         Ok(Rates { cart: x_ddot, cart_momentum_rate: 0.0, losses })
     }
 
     /// [`Chain::accelerations_general`] of two links in closed form (the most common chain; the
     /// recursion's fixed cost dominates at N = 2): the 2x2 solve, and with a cart its Schur
     /// complement. Leaves the angles' trig in `ws` as the recursion does.
+    /// A copy compiled for AVX2 + FMA where the CPU has them, as the ideal double pendulum's.
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
     fn accelerations_general_double(
@@ -208,9 +222,50 @@ impl Chain {
         out: &mut [f64],
         ws: &mut Workspace,
     ) -> Result<Rates, Singular> {
+        #[cfg(target_arch = "x86_64")]
+        if crate::trig::lanes::fma() {
+            // SAFETY: the CPU has AVX2 and FMA.
+            return unsafe { self.accelerations_general_double_fma(theta, omega, cart_v, tau, load, out, ws) };
+        }
+        self.accelerations_general_double_with::<false>(theta, omega, cart_v, tau, load, out, ws)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[allow(clippy::too_many_arguments)]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn accelerations_general_double_fma(
+        &self,
+        theta: &[f64],
+        omega: &[f64],
+        cart_v: f64,
+        tau: &[f64],
+        load: &Load,
+        out: &mut [f64],
+        ws: &mut Workspace,
+    ) -> Result<Rates, Singular> {
+        self.accelerations_general_double_with::<true>(theta, omega, cart_v, tau, load, out, ws)
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn accelerations_general_double_with<const FMA: bool>(
+        &self,
+        theta: &[f64],
+        omega: &[f64],
+        cart_v: f64,
+        tau: &[f64],
+        load: &Load,
+        out: &mut [f64],
+        ws: &mut Workspace,
+    ) -> Result<Rates, Singular> {
         let (d1, d2, h1, h2) = (self.diag[0], self.diag[1], self.h[0], self.h[1]);
         let k = self.lengths[0] * h2;
-        let [(s1, c1), (s2, c2)] = crate::trig::lanes::sin_cos_pair(theta[0], theta[1]);
+        // Inline, so that the copy compiled for FMA runs the kernel's `mul_add` as instructions.
+        let [(s1, c1), (s2, c2)] = if FMA {
+            crate::trig::lanes::sin_cos_pair_within(theta[0], theta[1])
+        } else {
+            crate::trig::lanes::sin_cos_pair(theta[0], theta[1])
+        };
         (ws.sin[0], ws.cos[0], ws.sin[1], ws.cos[1]) = (s1, c1, s2, c2);
         let (s12, c12) = (s1 * c2 - c1 * s2, c1 * c2 + s1 * s2);
         let [gx, gy] = load.gravity;

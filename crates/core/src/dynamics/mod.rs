@@ -53,11 +53,13 @@ pub struct Workspace {
     cos: Vec<f64>,
     u: Vec<[f64; 2]>,
     dinv: Vec<f64>,
+    /// The power each joint's losses dissipate (the general model's).
+    power: Vec<f64>,
 }
 
 impl Workspace {
     pub fn new(n: usize) -> Self {
-        Workspace { sin: vec![0.0; n], cos: vec![0.0; n], u: vec![[0.0; 2]; n], dinv: vec![0.0; n] }
+        Workspace { sin: vec![0.0; n], cos: vec![0.0; n], u: vec![[0.0; 2]; n], dinv: vec![0.0; n], power: vec![0.0; n] }
     }
 }
 
@@ -82,10 +84,19 @@ impl Chain {
     /// `n` coordinates), `sum_b h_b n_b x_b = w - G P_0` (the articulated inertia `G` and bias
     /// `w` at joint 0), which is what a cart needs.
     #[inline(always)]
-    fn eliminate(
+    fn eliminate(&self, ws: &mut Workspace, x: &mut [f64], extra: impl FnMut(usize, f64, f64) -> f64) -> Result<Articulated, Singular> {
+        self.eliminate_loaded(ws, x, |_, r| r, extra)
+    }
+
+    /// [`Chain::eliminate`] with `r_a` replaced by `load(a, r_a)` as link `a` comes up (from the
+    /// free end): the joint losses, computed where the elimination's chain of divisions leaves
+    /// the arithmetic units idle.
+    #[inline(always)]
+    fn eliminate_loaded(
         &self,
         ws: &mut Workspace,
         x: &mut [f64],
+        mut load: impl FnMut(usize, f64) -> f64,
         mut extra: impl FnMut(usize, f64, f64) -> f64,
     ) -> Result<Articulated, Singular> {
         let n = x.len();
@@ -101,7 +112,7 @@ impl Chain {
             }
             let inv = 1.0 / pivot;
             let (ux, uy) = (h[a] * nx - la * gnx, h[a] * ny - la * gny);
-            let rho = x[a] + extra(a, nx, ny) - la * (nx * wx + ny * wy);
+            let rho = load(a, x[a]) + extra(a, nx, ny) - la * (nx * wx + ny * wy);
             gxx += ux * ux * inv;
             gxy += ux * uy * inv;
             gyy += uy * uy * inv;
@@ -155,11 +166,42 @@ impl Chain {
     /// The double pendulum, the most common case, solved in closed form: the same `K`, `h` and
     /// diagonal as the recursion (tests hold the two equal), with `cos`/`sin(theta_1 - theta_2)`
     /// rebuilt from each angle's own pair so that only two `sincos` calls are made.
+    ///
+    /// Where the CPU has AVX2 and FMA, a copy compiled for them takes the angles' pair through
+    /// the lanes' kernel inline ([`crate::trig::lanes::sin_cos_pair`]); the rest of its
+    /// arithmetic is the same operations (Rust never fuses them unasked), so the same bits.
     #[inline(always)]
     fn accelerations_double(&self, theta: &[f64], omega: &[f64], tau: &[f64], out: &mut [f64]) -> Result<(), Singular> {
+        #[cfg(target_arch = "x86_64")]
+        if crate::trig::lanes::fma() {
+            // SAFETY: the CPU has AVX2 and FMA.
+            return unsafe { self.accelerations_double_fma(theta, omega, tau, out) };
+        }
+        self.accelerations_double_with::<false>(theta, omega, tau, out)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn accelerations_double_fma(&self, theta: &[f64], omega: &[f64], tau: &[f64], out: &mut [f64]) -> Result<(), Singular> {
+        self.accelerations_double_with::<true>(theta, omega, tau, out)
+    }
+
+    #[inline(always)]
+    fn accelerations_double_with<const FMA: bool>(
+        &self,
+        theta: &[f64],
+        omega: &[f64],
+        tau: &[f64],
+        out: &mut [f64],
+    ) -> Result<(), Singular> {
         let (d1, d2, h1, h2, g) = (self.diag[0], self.diag[1], self.h[0], self.h[1], self.g);
         let k = self.lengths[0] * h2;
-        let [(s1, c1), (s2, c2)] = crate::trig::lanes::sin_cos_pair(theta[0], theta[1]);
+        // Inline, so that the copy compiled for FMA runs the kernel's `mul_add` as instructions.
+        let [(s1, c1), (s2, c2)] = if FMA {
+            crate::trig::lanes::sin_cos_pair_within(theta[0], theta[1])
+        } else {
+            crate::trig::lanes::sin_cos_pair(theta[0], theta[1])
+        };
         let (s12, c12) = (s1 * c2 - c1 * s2, c1 * c2 + s1 * s2);
         let r1 = tau[0] - g * h1 * s1 - k * s12 * omega[1] * omega[1];
         let r2 = tau[1] - g * h2 * s2 + k * s12 * omega[0] * omega[0];

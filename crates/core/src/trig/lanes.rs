@@ -174,14 +174,28 @@ pub(crate) fn sin_cos_slice(x: &[f64], s: &mut [f64], c: &mut [f64]) -> bool {
     false
 }
 
+/// Whether the CPU has AVX2 and FMA, the features [`sin_cos_pair_within`] is compiled for.
+#[inline(always)]
+pub fn fma() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
 /// `sin` and `cos` of two angles in one call: the lanes' kernel (its bits, within 1 ulp of
 /// glibc's) where the CPU has AVX2 + FMA, glibc's `sincos` twice elsewhere or for |x| beyond the
 /// reduction's range. For the double pendulum's closed forms, where glibc's two calls were
 /// about 45% of an rk4 step: the two reductions and kernels run side by side, branch-free.
-#[inline(always)]
+/// The closed forms inline [`sin_cos_pair_within`] into their own AVX2 + FMA copies instead,
+/// so that no call spills their registers; this is the same pair as a function.
 pub fn sin_cos_pair(a: f64, b: f64) -> [(f64, f64); 2] {
     #[cfg(target_arch = "x86_64")]
-    if a.abs() <= REDUCE_LIMIT && b.abs() <= REDUCE_LIMIT && std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+    if fma() {
         // SAFETY: the CPU has AVX2 and FMA.
         return unsafe { sin_cos_pair_fma(a, b) };
     }
@@ -191,7 +205,19 @@ pub fn sin_cos_pair(a: f64, b: f64) -> [(f64, f64); 2] {
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 unsafe fn sin_cos_pair_fma(a: f64, b: f64) -> [(f64, f64); 2] {
-    [sin_cos_reduced(a), sin_cos_reduced(b)]
+    sin_cos_pair_within(a, b)
+}
+
+/// The body of [`sin_cos_pair`] where [`fma`] holds, for inlining into a caller compiled with
+/// `#[target_feature(enable = "avx2,fma")]` (elsewhere its `mul_add` is a call to libm's `fma`:
+/// the same bits, slowly).
+#[inline(always)]
+pub fn sin_cos_pair_within(a: f64, b: f64) -> [(f64, f64); 2] {
+    if a.abs() <= REDUCE_LIMIT && b.abs() <= REDUCE_LIMIT {
+        [sin_cos_reduced(a), sin_cos_reduced(b)]
+    } else {
+        [super::sin_cos(a), super::sin_cos(b)]
+    }
 }
 
 #[cfg(target_arch = "x86_64")]
