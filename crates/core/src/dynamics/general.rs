@@ -168,15 +168,19 @@ impl Chain {
             e
         };
         let lossy = self.lossy_joints();
-        let art = if lossy {
-            // Q_a = u_a - u_{a+1} from the free end, the joint below's torque carried; each
-            // joint's power kept for the sum from the base that the forward pass takes.
-            let mut power = std::mem::take(&mut ws.power);
+        // Q_a = u_a - u_{a+1} from the free end, the joint below's torque carried; each joint's
+        // power kept for the sum from the base that the forward pass takes. (One loop for both
+        // cases: a copy without the losses compiled to a slower elimination.)
+        let mut power = std::mem::take(&mut ws.power);
+        let solve = || {
             let mut next = 0.0;
             let art = self.eliminate_loaded(
                 ws,
                 out,
                 |a, r| {
+                    if !lossy {
+                        return r;
+                    }
                     let w = if a > 0 { omega[a] - omega[a - 1] } else { omega[0] };
                     let u = self.joint_loss(a, w);
                     power[a] = u * w;
@@ -185,30 +189,28 @@ impl Chain {
                     r + q
                 },
                 below,
-            );
-            ws.power = power;
-            art?
-        } else {
-            self.eliminate(ws, out, below)?
+            )?;
+            let x_ddot = match self.cart {
+                Some(cart) => (load.cart_force - cart.damping * cart_v + pull - art.wx) / self.cart_inertia(art)?,
+                None => 0.0,
+            };
+            let mut losses = 0.0;
+            self.substitute_from(ws, out, x_ddot, |a, _, _, _| {
+                if lossy {
+                    losses -= power[a];
+                }
+            });
+            Ok(Rates { cart: x_ddot, cart_momentum_rate: 0.0, losses })
         };
-        let x_ddot = match self.cart {
-            Some(cart) => (load.cart_force - cart.damping * cart_v + pull - art.wx) / self.cart_inertia(art)?,
-            None => 0.0,
-        };
-        let mut losses = 0.0;
-        if lossy {
-            let power = std::mem::take(&mut ws.power);
-            self.substitute_from(ws, out, x_ddot, |a, _, _, _| losses -= power[a]);
-            ws.power = power;
-        } else {
-            self.substitute_from(ws, out, x_ddot, |_, _, _, _| {});
-        }
-        Ok(Rates { cart: x_ddot, cart_momentum_rate: 0.0, losses })
+        let rates = solve();
+        ws.power = power;
+        rates
     }
 
     /// [`Chain::accelerations_general`] of two links in closed form (the most common chain; the
     /// recursion's fixed cost dominates at N = 2): the 2x2 solve, and with a cart its Schur
     /// complement. Leaves the angles' trig in `ws` as the recursion does.
+    ///
     /// A copy compiled for AVX2 + FMA where the CPU has them, as the ideal double pendulum's.
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
