@@ -83,6 +83,7 @@ def cases():
     lossy = mp.Chain.rods([1.0, 0.7, 0.5, 0.6], [1.0, 2.0, 0.5, 0.8], damping=[0.05, 0.02, 0.1, 0.0], friction=0.03)
     on_cart = mp.Chain.rods([1.0, 0.7, 0.5], [1.0, 2.0, 0.5], damping=0.04, friction=[0.0, 0.02, 0.05],
                             cart=mp.Cart(2.0, damping=0.3))
+    cart_pole = mp.Chain.rods([0.6, 0.6], [4.2, 4.2], cart=mp.Cart(10.5))  # the two links' closed form
     th4, om4 = [0.3, -1.2, 2.0, 0.4], [0.5, 0.0, -1.0, 2.0]
     shaken = mp.Pivot(x=mp.Sinusoid(0.01, 20.0), y=mp.Sinusoid(0.02, 30.0))
     for method, kw in (("rk4", dict(dt=0.002)), ("dop853", dict(rtol=1e-9, atol=1e-11))):
@@ -90,6 +91,8 @@ def cases():
             lossy, th4, om4, 3.0, method=m, t_eval=t_eval_off, pivot=shaken, **k))))
         out.append((f"{method}/lossy/cart", lambda m=method, k=kw: _sol(mp.simulate(
             on_cart, th3, om3, 2.0, method=m, cart_v0=0.4, cart_force=mp.Sinusoid(1.0, 3.0), **k))))
+        out.append((f"{method}/cart/double", lambda m=method, k=kw: _sol(mp.simulate(
+            cart_pole, [3.0, 3.3], [0.2, -0.3], 2.0, method=m, cart_x0=0.1, cart_v0=0.5, **k))))
     out.append(("rk4/hamiltonian", lambda: _sol(mp.simulate(point, th, om, 3.0, method="rk4", dt=0.01,
                                                             form="hamiltonian"))))
     out.append(("dop853/hamiltonian", lambda: _sol(mp.simulate(point, th, om, 3.0, form="hamiltonian"))))

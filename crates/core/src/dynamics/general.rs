@@ -283,22 +283,26 @@ impl Chain {
             return Err(Singular(0));
         }
         let inv = 1.0 / det;
-        let solve = |a: f64, b: f64| ((d2 * a - kc * b) * inv, (d1 * b - kc * a) * inv);
-        let (mut a1, mut a2) = solve(r[0], r[1]);
+        // det A^-1 applied to (a, b): the adjugate's product, divided by det at the end.
+        let adj = |a: f64, b: f64| (d2 * a - kc * b, d1 * b - kc * a);
+        let (ra1, ra2) = adj(r[0], r[1]);
+        let (mut a1, mut a2) = (ra1 * inv, ra2 * inv);
         let mut x_ddot = 0.0;
         if let Some(cart) = self.cart {
-            // theta_ddot = A^-1 (r - b x_ddot), b = h cos(theta); the cart's row closes it.
+            // theta_ddot = A^-1 (r - b x_ddot), b = h cos(theta); the cart's row closes it with
+            // the Schur complement S = total - b.A^-1 b. Scaled by det, neither S nor x_ddot's
+            // numerator waits for 1 / det: two divisions side by side, not one after the other.
             let (b1, b2) = (h1 * c1, h2 * c2);
-            let (z1, z2) = solve(b1, b2);
+            let (zb1, zb2) = adj(b1, b2);
             let total = cart.mass + self.total_mass();
-            let schur = total - (b1 * z1 + b2 * z2);
-            if !(schur > PIVOT_TOL * total) {
+            let schur_det = total * det - (b1 * zb1 + b2 * zb2);
+            if !(schur_det > PIVOT_TOL * total * det) {
                 return Err(Singular(0));
             }
             let rx = load.cart_force - cart.damping * cart_v + h1 * s1 * w1 * w1 + h2 * s2 * w2 * w2;
-            x_ddot = (rx - (b1 * a1 + b2 * a2)) / schur;
-            a1 -= z1 * x_ddot;
-            a2 -= z2 * x_ddot;
+            x_ddot = (rx * det - (b1 * ra1 + b2 * ra2)) / schur_det;
+            a1 = (ra1 - zb1 * x_ddot) * inv;
+            a2 = (ra2 - zb2 * x_ddot) * inv;
         }
         out[0] = a1;
         out[1] = a2;
