@@ -142,7 +142,14 @@ impl Chain {
     ) -> Result<Rates, Singular> {
         let n = theta.len();
         if n == 2 {
-            return self.accelerations_general_double(theta, omega, cart_v, tau, load, out, ws);
+            // Compiled a second time for AVX2 + FMA where the CPU has them, as the ideal double
+            // pendulum's ([`Chain::accelerations_double`]).
+            #[cfg(target_arch = "x86_64")]
+            if crate::trig::lanes::fma() {
+                // SAFETY: the CPU has AVX2 and FMA.
+                return unsafe { self.accelerations_general_double_fma(theta, omega, cart_v, tau, load, out, ws) };
+            }
+            return self.accelerations_general_double::<false>(theta, omega, cart_v, tau, load, out, ws);
         }
         let (l, h) = (&self.lengths[..n], &self.h[..n]);
         let (omega, tau, out) = (&omega[..n], &tau[..n], &mut out[..n]);
@@ -207,59 +214,21 @@ impl Chain {
         rates
     }
 
-    /// [`Chain::accelerations_general`] of two links in closed form (the most common chain; the
-    /// recursion's fixed cost dominates at N = 2): the 2x2 solve, and with a cart its Schur
-    /// complement. Leaves the angles' trig in `ws` as the recursion does.
-    ///
-    /// A copy compiled for AVX2 + FMA where the CPU has them, as the ideal double pendulum's.
-    #[allow(clippy::too_many_arguments)]
-    #[inline(always)]
-    fn accelerations_general_double(
-        &self,
-        theta: &[f64],
-        omega: &[f64],
-        cart_v: f64,
-        tau: &[f64],
-        load: &Load,
-        out: &mut [f64],
-        ws: &mut Workspace,
-    ) -> Result<Rates, Singular> {
-        #[cfg(target_arch = "x86_64")]
-        if crate::trig::lanes::fma() {
-            // SAFETY: the CPU has AVX2 and FMA.
-            return unsafe { self.accelerations_general_double_fma(theta, omega, cart_v, tau, load, out, ws) };
-        }
-        self.accelerations_general_double_with::<false>(theta, omega, cart_v, tau, load, out, ws)
-    }
-
+    /// [`Chain::accelerations_general_double`] compiled for AVX2 + FMA.
     #[cfg(target_arch = "x86_64")]
     #[allow(clippy::too_many_arguments)]
     #[target_feature(enable = "avx2,fma")]
-    unsafe fn accelerations_general_double_fma(
-        &self,
-        theta: &[f64],
-        omega: &[f64],
-        cart_v: f64,
-        tau: &[f64],
-        load: &Load,
-        out: &mut [f64],
-        ws: &mut Workspace,
-    ) -> Result<Rates, Singular> {
-        self.accelerations_general_double_with::<true>(theta, omega, cart_v, tau, load, out, ws)
+    unsafe fn accelerations_general_double_fma(&self, theta: &[f64], omega: &[f64], cart_v: f64, tau: &[f64], load: &Load, out: &mut [f64], ws: &mut Workspace) -> Result<Rates, Singular> {
+        self.accelerations_general_double::<true>(theta, omega, cart_v, tau, load, out, ws)
     }
 
+    /// [`Chain::accelerations_general`] of two links in closed form (the most common chain; the
+    /// recursion's fixed cost dominates at N = 2): the 2x2 solve, and with a cart its Schur
+    /// complement. Leaves the angles' trig in `ws` as the recursion does.
+    /// `FMA`: the copy for AVX2 + FMA, the angles' sin/cos pair inline.
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
-    fn accelerations_general_double_with<const FMA: bool>(
-        &self,
-        theta: &[f64],
-        omega: &[f64],
-        cart_v: f64,
-        tau: &[f64],
-        load: &Load,
-        out: &mut [f64],
-        ws: &mut Workspace,
-    ) -> Result<Rates, Singular> {
+    fn accelerations_general_double<const FMA: bool>(&self, theta: &[f64], omega: &[f64], cart_v: f64, tau: &[f64], load: &Load, out: &mut [f64], ws: &mut Workspace) -> Result<Rates, Singular> {
         let (d1, d2, h1, h2) = (self.diag[0], self.diag[1], self.h[0], self.h[1]);
         let k = self.lengths[0] * h2;
         // Inline, so that the copy compiled for FMA runs the kernel's `mul_add` as instructions.
