@@ -24,6 +24,18 @@ pub(crate) fn take(errors: &Errors) -> Option<PyErr> {
     errors.lock().unwrap_or_else(|p| p.into_inner()).take()
 }
 
+/// A user function's own exception as an `mp.InputError` naming the function and the time, the
+/// original kept as its cause; Ctrl-C and other exceptions outside `Exception` pass unchanged.
+fn raised(py: Python<'_>, e: PyErr, what: &str, t: f64) -> PyErr {
+    if !e.is_instance_of::<pyo3::exceptions::PyException>(py) {
+        return e;
+    }
+    let value = e.value(py).repr().map(|r| r.to_string()).unwrap_or_default();
+    let wrapped = InputError::new_err(format!("{what} raised {value} at t = {t}"));
+    wrapped.set_cause(py, Some(e));
+    wrapped
+}
+
 struct AxisCall {
     f: Py<PyAny>,
     name: &'static str,
@@ -33,7 +45,7 @@ struct AxisCall {
 impl core::AxisFn for AxisCall {
     fn eval(&self, t: f64) -> core::Result<[f64; 3]> {
         Python::attach(|py| {
-            let r = self.f.call1(py, (t,)).and_then(|v| {
+            let r = self.f.call1(py, (t,)).map_err(|e| raised(py, e, &format!("the pivot {} function", self.name), t)).and_then(|v| {
                 let bad = || {
                     InputError::new_err(format!(
                         "the pivot {} function must return (position, velocity, acceleration), 3 finite numbers, got {} at t = {t}",
