@@ -170,6 +170,23 @@ def test_damping_enters_the_linearisation_but_not_the_undamped_modes():
     assert not modes.cart
 
 
+def test_friction_enters_the_linearisation_as_its_slope_at_rest():
+    # Regularised Coulomb friction u = -f tanh(w / v_s) is, to first order at rest, a damper
+    # of f / v_s; with a damper b too: theta'' = -(m g c / I_p) q - ((b + f / v_s) / I_p) omega.
+    b, f, v_s = 0.1, 0.05, 0.01
+    chain = mp.Chain([1.0], [2.0], damping=b, friction=f, friction_velocity=v_s)
+    A, B = mp.linearize(chain, [0.0])
+    I_p = 2.0
+    np.testing.assert_allclose(A, [[0.0, 1.0], [-2.0 * G / I_p, -(b + f / v_s) / I_p]], rtol=1e-12)
+    np.testing.assert_allclose(B, [[0.0], [1.0 / I_p]], rtol=1e-12)
+    # Two links: the relative rate of joint 2 is omega_2 - omega_1, so its slope couples both.
+    two = mp.Chain([1.0, 1.0], [1.0, 1.0], friction=[0.0, f], friction_velocity=v_s)
+    A2, _ = mp.linearize(two, [0.0, 0.0])
+    Minv = np.linalg.inv(two.mass_matrix([0.0, 0.0]))
+    c = f / v_s
+    np.testing.assert_allclose(A2[2:, 2:], -Minv @ np.array([[c, -c], [-c, c]]), rtol=1e-12, atol=1e-12)
+
+
 def test_modes_of_a_chain_on_a_cart_are_drawn_and_animated_with_the_cart(tmp_path):
     chain = mp.Chain.rods([1.0, 1.0], [1.0, 1.0], cart=mp.Cart(2.0))
     modes = mp.normal_modes(chain, [0.0, 0.0])

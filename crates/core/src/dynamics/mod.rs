@@ -165,7 +165,7 @@ impl Chain {
 
     /// The double pendulum, the most common case, solved in closed form: the same `K`, `h` and
     /// diagonal as the recursion (tests hold the two equal), with `cos`/`sin(theta_1 - theta_2)`
-    /// rebuilt from each angle's own pair so that only two `sincos` calls are made.
+    /// rebuilt from each angle's own pair so that only the two angles' sin/cos are taken.
     ///
     /// Where the CPU has AVX2 and FMA, a copy compiled for them takes the angles' pair through
     /// the lanes' kernel inline ([`crate::trig::lanes::sin_cos_pair`]); the rest of its
