@@ -520,6 +520,19 @@ mod tests {
     use crate::integrators::Rk4;
     use crate::trig::lanes::tests::cpu_flags_have;
 
+    /// The lanes' flip times against the scalar path's where the motion is regular: the same
+    /// decision (a flip or none) for at least 99% of the rows, and the same time to 1e-9 for
+    /// every row that flips before `before` on both (more than `early` of them).
+    fn agree(fast: &[f64], slow: &[f64], before: f64, early: usize, what: &str) {
+        let same = fast.iter().zip(slow).filter(|(a, b)| a.is_finite() == b.is_finite()).count();
+        assert!(same as f64 >= 0.99 * fast.len() as f64, "{what}: {same} of {}", fast.len());
+        let both: Vec<_> = fast.iter().zip(slow).filter(|(a, b)| **a < before && **b < before).collect();
+        assert!(both.len() > early, "{what}: {}", both.len());
+        for (a, b) in both {
+            assert!((a - b).abs() < 1e-9, "{what}: {a} vs {b}");
+        }
+    }
+
     fn go() -> Watch {
         Watch::new()
     }
@@ -605,13 +618,7 @@ mod tests {
                 let steps = 400;
                 let fast = first_flips_double(&chain, &th, &om, steps, 0.01, link, Path::best(), &go()).unwrap();
                 let slow = first_flips_scalar(&chain, &th, &om, 4.0, 0.01, link, &Builtin::None, &go()).unwrap();
-                let same = fast.iter().zip(&slow).filter(|(a, b)| a.is_finite() == b.is_finite()).count();
-                assert!(same as f64 >= 0.99 * fast.len() as f64, "{same} of {}", fast.len());
-                let early: Vec<_> = fast.iter().zip(&slow).filter(|(a, b)| **a < 2.0 && **b < 2.0).collect();
-                assert!(early.len() > 50, "{}", early.len());
-                for (a, b) in early {
-                    assert!((a - b).abs() < 1e-9, "{a} vs {b}");
-                }
+                agree(&fast, &slow, 2.0, 50, "the double pendulum");
                 // The rows starting beyond pi (the grid's edges) flip at 0 on both paths.
                 assert_eq!(fast[0], 0.0);
                 assert_eq!(slow[0], 0.0);
@@ -662,13 +669,7 @@ mod tests {
                     let (th, om) = released(n, 31);
                     let fast = first_flips_chain(&chain, &th, &om, 300, 0.01, link, None, Path::best(), &go()).unwrap();
                     let slow = first_flips_scalar(&chain, &th, &om, 3.0, 0.01, link, &Builtin::None, &go()).unwrap();
-                    let same = fast.iter().zip(&slow).filter(|(a, b)| a.is_finite() == b.is_finite()).count();
-                    assert!(same as f64 >= 0.99 * fast.len() as f64, "N = {n}: {same} of {}", fast.len());
-                    let early: Vec<_> = fast.iter().zip(&slow).filter(|(a, b)| **a < 1.5 && **b < 1.5).collect();
-                    assert!(early.len() > 30, "N = {n}: {}", early.len());
-                    for (a, b) in early {
-                        assert!((a - b).abs() < 1e-9, "N = {n}: {a} vs {b}");
-                    }
+                    agree(&fast, &slow, 1.5, 30, &format!("N = {n}"));
                     assert_eq!((fast[0], slow[0]), (0.0, 0.0)); // starting beyond pi
                     assert!(fast.iter().any(|t| t.is_infinite()) || n == 1 || link.is_some());
                 }
@@ -707,13 +708,7 @@ mod tests {
                 let slow = first_flips_scalar(&chain, &th, &om, 3.0, 0.01, None, &drive, &go()).unwrap();
                 let undriven = first_flips_chain(&chain, &th, &om, 300, 0.01, None, None, Path::best(), &go()).unwrap();
                 assert!(fast.iter().zip(&undriven).filter(|(a, b)| a != b).count() > 100, "the drive changes the flips");
-                let same = fast.iter().zip(&slow).filter(|(a, b)| a.is_finite() == b.is_finite()).count();
-                assert!(same as f64 >= 0.99 * fast.len() as f64, "N = {n}: {same} of {}", fast.len());
-                let early: Vec<_> = fast.iter().zip(&slow).filter(|(a, b)| **a < 1.0 && **b < 1.0).collect();
-                assert!(early.len() > 30, "N = {n}: {}", early.len());
-                for (a, b) in early {
-                    assert!((a - b).abs() < 1e-9, "N = {n}: {a} vs {b}");
-                }
+                agree(&fast, &slow, 1.0, 30, &format!("N = {n}, driven"));
                 // Lanes are refilled at different times: a row alone is the same bits.
                 for path in Path::ALL.into_iter().filter(|p| p.available()) {
                     let got = first_flips_chain(&chain, &th, &om, 300, 0.01, None, Some(&timed), path, &go()).unwrap();

@@ -12,7 +12,7 @@
 //! error that route reports.
 use super::indicators::{orthonormalise, run, Indicator};
 use crate::dynamics::lanes::{accelerations, add_loss_tangent, add_losses, tangent, LaneScratch};
-use crate::dynamics::torque::{Builtin, Timed, TorqueSource};
+use crate::dynamics::torque::{Builtin, Timed};
 use crate::error::Result;
 use crate::dynamics::lanes::LaneSingular;
 use crate::integrators::lanes::{LaneSystem, Rk4Lanes};
@@ -117,7 +117,7 @@ struct Job<'a> {
 impl<'a> Job<'a> {
     #[allow(clippy::too_many_arguments)]
     fn new(chain: &'a Chain, torque: &'a Builtin, steps: u64, dt: f64, which: Indicator, start: &'a [f64], deviations: Option<&'a [f64]>, watch: &'a Watch) -> Self {
-        let drive = torque.active().then(|| Timed { builtin: torque.clone(), joint: false });
+        let drive = Timed::generalized(torque);
         Job { chain, drive, torque, steps, dt, which, start, deviations, watch }
     }
 

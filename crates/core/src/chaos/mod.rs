@@ -243,7 +243,7 @@ pub fn first_flips(
     // The kernels: the ideal undriven double pendulum's own, any other chain in lanes (damping,
     // friction, a cart and a built-in torque included).
     if let Some(path) = flipkernel::requested()? {
-        let drive = torque.active().then(|| Timed { builtin: torque.clone(), joint: false });
+        let drive = Timed::generalized(torque);
         return match (chain.n(), chain.is_ideal()) {
             (2, true) if drive.is_none() && !flipkernel::generic() => flipkernel::first_flips_double(chain, theta0, omega0, steps, dt, link, path, watch),
             _ => flipkernel::first_flips_chain(chain, theta0, omega0, steps, dt, link, drive.as_ref(), path, watch),

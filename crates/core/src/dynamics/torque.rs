@@ -179,6 +179,11 @@ pub struct Timed {
 }
 
 impl Timed {
+    /// A built-in generalized torque as a drive; `None` where there is no torque.
+    pub fn generalized(torque: &Builtin) -> Option<Timed> {
+        torque.active().then(|| Timed { builtin: torque.clone(), joint: false })
+    }
+
     /// The generalized torques of every lane at its time `at[i]` into `out` (`out[link][i]`):
     /// a sinusoid through the lanes' own `sin` (the lanes' round-off, as their dynamics').
     #[inline(always)]
