@@ -101,6 +101,30 @@ def test_gauss_solves_stiff_stages_by_newton_where_fixed_point_iteration_diverge
     assert s.stats.energy_error < 1e-8
 
 
+def _contraction_rate(chain, sol, B):
+    """The mean phase-space contraction rate that a Lyapunov spectrum in Lagrangian coordinates
+    sums to over [0, T]: in canonical coordinates (q, p) volumes contract at -tr(M^-1 B)
+    (Liouville; B the viscous damping matrix, M the mass matrix, both of q = (x, theta) on a
+    cart); the exponents are measured in (q, q_dot) = (q, M^-1 p), whose volumes are those
+    divided by det M, so the sum is the mean rate minus ln(det M(T) / det M(0)) / T. A moving
+    pivot's force depends on time only and keeps volumes. (A chaotic motion's averages differ
+    from one approximation of it to another: the run takes the Lyapunov run's rk4 steps, and
+    the span keeps lambda T below ~15, so that the last-bit differences of their steps stay
+    far below the tolerance.)"""
+    M = chain.mass_matrix(sol.theta)
+    rate = np.array([-np.trace(np.linalg.solve(a, B)) for a in M])
+    trapezoid = getattr(np, "trapezoid", None) or getattr(np, "trapz")
+    dets = np.linalg.det(M[[0, -1]])
+    t_end = sol.t[-1]
+    return float(trapezoid(rate, sol.t) / t_end) - math.log(dets[1] / dets[0]) / t_end
+
+
+def _joint_damping(b):
+    """B = D^T diag(b) D, with w = D omega the joints' relative rates."""
+    D = np.eye(len(b)) - np.eye(len(b), k=-1)
+    return D.T @ np.diag(b) @ D
+
+
 def test_damped_lyapunov_spectra_sum_to_the_phase_space_contraction_rate():
     # A single pendulum: d(omega_dot)/d(omega) = -b / (m l^2), constant; the two exponents
     # sum to it exactly.
@@ -108,23 +132,123 @@ def test_damped_lyapunov_spectra_sum_to_the_phase_space_contraction_rate():
     single = mp.Chain([l], [m], damping=b)
     lam = mp.lyapunov(single, [0.5], [0.0], 40.0, dt=0.005, k=2).exponents
     assert abs(lam.sum() - (-b / (m * l * l))) < 1e-6
-    # A double pendulum: in canonical coordinates (theta, p) phase space contracts at the rate
-    # -tr(A^-1 B) (B = D^T diag(b) D, w = D omega; Liouville); the exponents are measured in
-    # (theta, omega) = (theta, A^-1 p), whose volumes are those divided by det A: their sum over
-    # [0, T] is the mean rate minus ln(det A(T) / det A(0)) / T.
-    # (The same rk4 steps as the Lyapunov run's own trajectory: a chaotic motion's averages
-    # differ from one approximation of it to another.)
     double = mp.Chain([1.0, 0.8], [1.0, 1.5], damping=[0.3, 0.1])
     t_end, dt = 40.0, 0.002
     lam = mp.lyapunov(double, [2.0, 2.5], [0.0, 0.0], t_end, dt=dt, k=4).exponents
     s = mp.simulate(double, [2.0, 2.5], [0.0, 0.0], t_end, method="rk4", dt=dt)
-    D = np.array([[1.0, 0.0], [-1.0, 1.0]])
-    B = D.T @ np.diag(double.damping) @ D
-    rate = np.array([-np.trace(np.linalg.solve(A, B)) for A in double.mass_matrix(s.theta)])
-    trapezoid = getattr(np, "trapezoid", None) or getattr(np, "trapz")
-    dets = np.linalg.det(double.mass_matrix(s.theta[[0, -1]]))
-    mean = float(trapezoid(rate, s.t) / t_end) - math.log(dets[1] / dets[0]) / t_end
+    mean = _contraction_rate(double, s, _joint_damping(double.damping))
     assert abs(lam.sum() - mean) < 1e-4 * abs(mean), (lam.sum(), mean)
+
+
+def _driven(variant, t0=0.0):
+    """A chaotic double pendulum on a shaken pivot, or on a damped cart pushed by a sinusoidal
+    force, with its drive started at time t0 (a sinusoid's phase moved on: a run restarted at
+    t0 sees the drive the first run saw then)."""
+    if variant == "pivot":
+        chain = mp.Chain.rods([1.0, 0.7], [1.0, 2.0], damping=[0.05, 0.02])
+        return chain, {"pivot": mp.Pivot(x=mp.Sinusoid(amplitude=0.05, frequency=7.0, phase=7.0 * t0),
+                                         y=mp.Sinusoid(amplitude=0.03, frequency=11.0, phase=0.4 + 11.0 * t0))}
+    chain = mp.Chain([1.0, 0.8], [1.0, 1.5], damping=[0.3, 0.1], cart=mp.Cart(2.0, damping=0.5))
+    return chain, {"cart_force": mp.Sinusoid(amplitude=1.0, frequency=3.0, phase=3.0 * t0)}
+
+
+@pytest.mark.parametrize("variant", ["pivot", "cart"])
+def test_driven_lyapunov_spectra_sum_to_the_contraction_rate(variant):
+    chain, drive = _driven(variant)
+    start = dict(cart_v0=0.4) if variant == "cart" else {}
+    t_end, dt = 15.0, 0.002
+    lam = mp.lyapunov(chain, [2.0, 2.5], [0.0, 0.0], t_end, dt=dt, **drive, **start).exponents
+    assert lam.size == (6 if variant == "cart" else 4)  # (theta, omega), and the cart's (x, v)
+    s = mp.simulate(chain, [2.0, 2.5], [0.0, 0.0], t_end, method="rk4", dt=dt, **drive, **start)
+    B = _joint_damping(chain.damping)
+    if variant == "cart":
+        B = np.block([[np.full((1, 1), chain.cart.damping), np.zeros((1, 2))], [np.zeros((2, 1)), B]])
+    mean = _contraction_rate(chain, s, B)
+    assert abs(lam.sum() - mean) < 1e-4 * abs(mean), (lam.sum(), mean)
+    if variant == "cart":  # the cart's damping is in the sum: without it the rate would differ
+        assert abs(mean - _contraction_rate(chain, s, np.pad(B[1:, 1:], ((1, 0), (1, 0))))) > 0.05
+
+
+@pytest.mark.parametrize("variant", ["pivot", "cart"])
+def test_the_largest_driven_exponent_is_the_divergence_rate_of_two_nearby_runs(variant):
+    # Benettin's two-trajectory estimate, independent of the tangent equations: a copy started
+    # d0 away, each interval's separation's growth logged and the copy pulled back to d0 along
+    # it, both runs by mp.simulate's rk4 on the same steps (restarted at each interval, the
+    # drive's phase moved on). The tangent vector follows the derivative of the same rk4 map.
+    t_end, dt, every, d0 = 20.0, 0.005, 20, 1e-8
+    chain, drive = _driven(variant)
+    cart = variant == "cart"
+    lam = mp.lyapunov(chain, [2.0, 2.5], [0.0, 0.0], t_end, dt=dt, k=1, renorm_every=every, **drive).largest
+    tau = every * dt
+    m = 2 * chain.n + 2 * cart
+
+    def advance(state, t0):
+        _, drive_now = _driven(variant, t0)
+        base = dict(cart_x0=state[4], cart_v0=state[5]) if cart else {}
+        s = mp.simulate(chain, state[:2], state[2:4], tau, method="rk4", dt=dt, t_eval=[tau], **drive_now, **base)
+        out = np.concatenate([s.theta[-1], s.omega[-1]])
+        return np.concatenate([out, [s.cart_x[-1], s.cart_v[-1]]]) if cart else out
+
+    # (theta, omega, x, v): the Lyapunov run's first tangent vector is the unit vector along theta_1.
+    a = np.array([2.0, 2.5, 0.0, 0.0] + [0.0] * (m - 4))
+    b = a + d0 * np.eye(m)[0]
+    logs = 0.0
+    for i in range(round(t_end / tau)):
+        a, b = advance(a, i * tau), advance(b, i * tau)
+        d = np.linalg.norm(b - a)
+        logs += math.log(d / d0)
+        b = a + (b - a) * (d0 / d)
+    assert abs(lam - logs / t_end) < 1e-3 * abs(lam), (lam, logs / t_end)
+    assert lam > 0.1  # chaotic: the test compares a growth, not two zeros
+
+
+def test_driven_runs_say_how_long_they_are_trustworthy():
+    # The estimate's Lyapunov run takes the run's own drive, at a twentieth of the fastest time
+    # scale: the chain's linearisation's, or a fast pivot's (200 rad/s: steps of 0.05 / 200 s).
+    kapitza = mp.Pivot(y=mp.Sinusoid(amplitude=0.02, frequency=200.0))
+    cart, push = _driven("cart")
+    for chain, drive in [(mp.Chain([1.0, 0.7], [1.0, 2.0]), {"pivot": kapitza}), (cart, push)]:
+        sol = mp.simulate(chain, [2.0, 2.5], [0.0, 0.0], 5.0, **drive)
+        until, why = sol.trustworthy(horizon=5.0)
+        rho = max(np.max(np.abs(np.linalg.eigvals(chain.jacobian([2.0, 2.5], [0.0, 0.0])))), 200.0 if "pivot" in drive else 0.0)
+        lam = mp.lyapunov(chain, [2.0, 2.5], [0.0, 0.0], 5.0, dt=min(0.005, 0.05 / rho), k=1, **drive).largest
+        assert why == f"largest Lyapunov exponent {lam:.3g}/s", why
+        assert until == pytest.approx(mp.trustworthy_until(lam if lam > 0.05 else 0.0, eps=1e-10))
+    pushed = mp.simulate(cart, [2.0, 2.5], [0.0, 0.0], 1.0, cart_force=lambda t, s: -s[0])
+    assert pushed.trustworthy() == (None, "not estimated under a cart force given as a Python function")
+
+
+def test_lyapunov_refuses_what_it_cannot_differentiate_and_bad_base_inputs():
+    cart = mp.Chain([1.0, 0.8], [1.0, 1.5], cart=mp.Cart(2.0))
+    run = lambda chain, **kw: mp.lyapunov(chain, [0.5, 0.2], [0.0, 0.0], 1.0, dt=0.01, **kw)  # noqa: E731
+    with pytest.raises(mp.InputError, match=r"Lyapunov exponents take a cart force of time alone \(a number, Sinusoid or Table\), not a function of the state"):
+        run(cart, cart_force=lambda t, s: -s[0])
+    with pytest.raises(mp.InputError, match=r"k must be between 1 and 2N \+ 2 = 6 \(the angles, their rates and the cart's\), got 7"):
+        run(cart, k=7)
+    with pytest.raises(mp.InputError, match="a chain on a cart has no prescribed pivot motion"):
+        run(cart, pivot=SHAKE)
+    fixed = mp.Chain([1.0, 0.8], [1.0, 1.5])
+    with pytest.raises(mp.InputError, match="need a chain with a cart"):
+        run(fixed, cart_v0=1.0)
+    with pytest.raises(mp.InputError, match="need a chain with a cart"):
+        run(fixed, cart_force=1.0)
+    with pytest.raises(mp.InputError, match="cart_x0 must be finite"):
+        run(cart, cart_x0=float("nan"))
+    with pytest.raises(mp.InputError, match="pivot must be a multipendulum.Pivot, got float"):
+        run(fixed, pivot=0.5)
+
+    def boom(t):
+        raise ZeroDivisionError("my pivot failed")
+
+    # A pivot function's own exception, as simulate reports it.
+    with pytest.raises(mp.InputError, match=r"the pivot y function raised ZeroDivisionError\('my pivot failed'\) at t = 0") as info:
+        run(fixed, pivot=mp.Pivot(y=boom))
+    assert isinstance(info.value.__cause__, ZeroDivisionError)
+    # A pivot function of time is differentiable along the state (it does not depend on it).
+    kapitza = lambda t: (0.02 * math.sin(200 * t), 4.0 * math.cos(200 * t), -800.0 * math.sin(200 * t))  # noqa: E731
+    a = mp.lyapunov(fixed, [0.5, 0.2], [0.0, 0.0], 1.0, dt=0.001, pivot=mp.Pivot(y=kapitza)).exponents
+    b = mp.lyapunov(fixed, [0.5, 0.2], [0.0, 0.0], 1.0, dt=0.001, pivot=mp.Pivot(y=mp.Sinusoid(amplitude=0.02, frequency=200.0))).exponents
+    np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12)
 
 
 @pytest.mark.parametrize("frequency, upright", [(300.0, True), (100.0, False)])

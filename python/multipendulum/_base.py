@@ -157,6 +157,17 @@ def core_force(spec: Optional[Tuple[Any, ...]]) -> Optional[_core.CartForce]:
     return _core.CartForce.function(spec[1])
 
 
+def base_inputs(has_cart: bool, pivot: Optional[Pivot], cart_x0: object, cart_v0: object,
+                force: Optional[ForceLike]) -> Tuple[Optional[Tuple[Any, ...]], Optional[Tuple[Any, ...]], Tuple[float, float]]:
+    """The plain data of a run's base inputs: the pivot's and the cart force's specs and the
+    cart's initial ``[x, v]``; the cart's inputs refused on a chain without one."""
+    pivot_spec, force_spec = normalise_pivot(pivot), normalise_force(force)
+    cart0 = (as_float(cart_x0, "cart_x0", finite=True), as_float(cart_v0, "cart_v0", finite=True))
+    if not has_cart and (cart0 != (0.0, 0.0) or force_spec is not None):
+        raise InputError("cart_x0, cart_v0 and cart_force need a chain with a cart (mp.Chain(..., cart=mp.Cart(mass)))")
+    return pivot_spec, force_spec, cart0
+
+
 def force_object(spec: Optional[Tuple[Any, ...]]) -> Optional[ForceLike]:
     """The user-level cart force of a built-in spec (a checkpoint's)."""
     if spec is None:

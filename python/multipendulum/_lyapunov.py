@@ -10,6 +10,7 @@ import numpy as np
 import numpy.typing as npt
 
 import multipendulum._core as _core
+from ._base import ForceLike, Pivot, base_inputs, core_force, core_pivot
 from ._chain import Chain, as_state, check_chain
 from ._convert import Integer, as_float
 from ._progress import Progress, reporter
@@ -41,39 +42,50 @@ def _link(link: Optional[Integer], n: int) -> Optional[int]:
 
 def lyapunov(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: float, dt: float = 0.005,
              k: Optional[Integer] = None, renorm_every: Integer = 10,
-             torque: Optional[TorqueLike] = None, progress: Progress = None) -> LyapunovResult:
-    """The ``k`` largest Lyapunov exponents (default: the full spectrum, k = 2N).
+             torque: Optional[TorqueLike] = None, progress: Progress = None, *, pivot: Optional[Pivot] = None,
+             cart_x0: float = 0.0, cart_v0: float = 0.0, cart_force: Optional[ForceLike] = None) -> LyapunovResult:
+    """The ``k`` largest Lyapunov exponents (default: the full spectrum, k = 2N; on a cart
+    2N + 2, of the state ``(theta, omega, x, v)``).
 
     Integrates the variational (tangent) equations of the Lagrangian form with rk4 at step ``dt``
     and re-orthonormalises the tangent vectors every ``renorm_every`` steps (Benettin et al. 1980).
-    For the undriven chain the spectrum comes in +/- pairs summing to ~0. ``torque`` may depend
-    on time (a constant, :class:`Sinusoid` or :class:`Table`). ``progress``: True for a bar on
-    stderr, or a callable given the fraction done (:mod:`multipendulum._progress`); Ctrl-C stops
-    the run within a fraction of a second (``KeyboardInterrupt``).
+    For an undamped chain the spectrum comes in +/- pairs summing to ~0; with damping or friction
+    it sums to the phase-space contraction rate. ``torque`` may depend on time (a constant,
+    :class:`Sinusoid` or :class:`Table`), as may a moving ``pivot`` (:class:`Pivot`, the
+    Kapitza pendulum's) and, on a chain with a :class:`Cart`, ``cart_force`` (a number,
+    :class:`Sinusoid` or :class:`Table`; not a function of the state, whose derivative is not
+    known); ``cart_x0``, ``cart_v0`` start the cart (its position is a neutral direction: one
+    exponent is zero). ``progress``: True for a bar on stderr, or a callable given the fraction
+    done (:mod:`multipendulum._progress`); Ctrl-C stops the run within a fraction of a second
+    (``KeyboardInterrupt``).
 
     >>> import multipendulum as mp
     >>> res = mp.lyapunov(mp.Chain([1, 1], [1, 1]), [2.0, 2.5], [0, 0], t_end=100.0)
     >>> bool(res.largest > 0.5)
+    True
+    >>> shaken = mp.Pivot(y=mp.Sinusoid(amplitude=0.02, frequency=200.0))
+    >>> res = mp.lyapunov(mp.Chain([0.5], [1.0]), [3.0], [0.0], t_end=20.0, dt=0.0005, pivot=shaken)
+    >>> bool(abs(res.exponents.sum()) < 1e-3)  # undamped: phase-space volume is kept
     True
     """
     check_chain(chain)
     th0, om0 = as_state(theta0, "theta0", chain.n), as_state(omega0, "omega0", chain.n)
     if th0.ndim != 1 or om0.ndim != 1:
         raise InputError(f"theta0 and omega0 must have shape ({chain.n},)")
-    k = 2 * chain.n if k is None else k
-    if isinstance(k, bool) or not isinstance(k, (int, np.integer)):
-        raise InputError(f"k must be an integer between 1 and 2N = {2 * chain.n}, got {k!r}")
-    if not 1 <= k <= 2 * chain.n:
-        raise InputError(f"k must be between 1 and 2N = {2 * chain.n}, got {k}")
+    if k is not None and (isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1):
+        raise InputError(f"k must be a positive integer (at most the state's size), got {k!r}")
     if isinstance(renorm_every, bool) or not isinstance(renorm_every, (int, np.integer)) \
             or not 1 <= renorm_every < 2**64:
         raise InputError(f"renorm_every must be a positive integer (steps), got {renorm_every!r}")
     spec, joint = normalise_torque(torque, None, chain.n)
+    pivot_spec, force_spec, cart0 = base_inputs(chain.cart is not None, pivot, cart_x0, cart_v0, cart_force)
     with reporter(progress, "lyapunov") as report:
         exps, times, hist = _core.lyapunov(chain._c, th0.tolist(), om0.tolist(), as_float(t_end, "t_end"),
-                                           dt=as_float(dt, "dt"), k=int(k), renorm_every=int(renorm_every),
-                                           torque=core_torque(spec, joint), progress=report)
-    return LyapunovResult(exps, times, hist.reshape(times.size, int(k)))
+                                           dt=as_float(dt, "dt"), k=None if k is None else int(k),
+                                           renorm_every=int(renorm_every), torque=core_torque(spec, joint),
+                                           pivot=core_pivot(pivot_spec), cart_force=core_force(force_spec),
+                                           cart0=cart0, progress=report)
+    return LyapunovResult(exps, times, hist.reshape(times.size, exps.size))
 
 
 def trustworthy_until(lyapunov_exponent: float, tolerance: float = 1e-2, eps: float = 1e-16) -> float:

@@ -10,13 +10,13 @@ import numpy as np
 import numpy.typing as npt
 
 import multipendulum._core as _core
-from ._base import ForceLike, Pivot, core_force, core_pivot, force_object, normalise_force, normalise_pivot, pivot_object
+from ._base import ForceLike, Pivot, base_inputs, core_force, core_pivot, force_object, pivot_object
 from ._chain import Chain, as_state
 from ._convert import Integer, as_float, as_floats
 from ._lyapunov import lyapunov, trustworthy_until
 from ._progress import Progress, reporter
 from ._progress import check as _check_progress
-from ._torque import TorqueLike, core_torque, normalise_torque, torque_object
+from ._torque import Sinusoid, TorqueLike, core_torque, normalise_torque, torque_object
 from .checkpoint import Archive, Writer, cadence, load_checkpoint
 from .errors import InputError, IntegrationError
 
@@ -283,7 +283,8 @@ class Solution:
 
         The Lyapunov run resolves the chain's fastest motion: its step is a twentieth of the
         shortest time scale of the linearised motion at the initial state (``1 / max |eigenvalue|``
-        of :meth:`Chain.jacobian`), at most 0.005 s, and it spans at most :attr:`TRUST_STEPS` of
+        of :meth:`Chain.jacobian`) and of the fastest sinusoidal drive (torque, pivot or cart
+        force: ``1 / frequency``), at most 0.005 s, and it spans at most :attr:`TRUST_STEPS` of
         them (a stiff chain gets a shorter span, said in the sentence)."""
         if self.theta.ndim != 2:
             return None, "not estimated for a batch (estimate one trajectory at a time)"
@@ -291,8 +292,9 @@ class Solution:
             return None, "not estimated under a torque given as a Python function"
         if self._joint:
             return None, "not estimated under joint-motor torques"
-        if getattr(self, "_pivot", None) is not None or self.chain.cart is not None:
-            return None, "not estimated with a moving pivot or a cart (the estimate's Lyapunov run has a fixed pivot)"
+        pivot, cart_force = self._pivot, self._cart_force
+        if callable(cart_force):
+            return None, "not estimated under a cart force given as a Python function"
         if self.n > self.TRUST_MAX_LINKS:
             return None, f"not estimated for chains of more than {self.TRUST_MAX_LINKS} links"
         span = float(min(self.t[-1], horizon))
@@ -303,13 +305,17 @@ class Solution:
             rho = float(np.max(np.abs(np.linalg.eigvals(self.chain.jacobian(theta0, omega0)))))
         except (np.linalg.LinAlgError, InputError, IntegrationError) as exc:
             return None, f"the linearisation at the initial state failed ({exc})"
+        drives = [self._torque, cart_force] + ([] if pivot is None else [pivot.x, pivot.y])
+        rho = max([rho] + [float(np.max(np.abs(d.frequency))) for d in drives if isinstance(d, Sinusoid)])
         dt = min(0.005, span / 20, 0.05 / rho if rho > 0 else 0.005)
         note = ""
         if span / dt > self.TRUST_STEPS:
             span = self.TRUST_STEPS * dt
             note = f", over the first {span:.3g} s (a stiff chain: steps of {dt:.2g} s)"
         try:
-            lam = lyapunov(self.chain, theta0, omega0, span, dt=dt, k=1, torque=self._torque).largest
+            cart = {} if self.cart_x is None or self.cart_v is None else dict(cart_x0=self.cart_x[0], cart_v0=self.cart_v[0], cart_force=cart_force)
+            lam = lyapunov(self.chain, theta0, omega0, span, dt=dt, k=1, torque=self._torque,
+                           pivot=pivot, **cart).largest
         except (InputError, IntegrationError) as exc:
             return None, f"the Lyapunov run for the estimate failed ({exc})"
         eps = self._rtol if self.method == "dop853" else max(float(self.stats.energy_error), 1e-16)
@@ -450,10 +456,7 @@ def simulate(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: 
                              "each trajectory of a batch at its own time, which the batch's arrays cannot hold: "
                              "give terminal=False (the crossings are still recorded) or run the trajectories one by one")
     event_specs = [e._spec(chain.n) for e in events]
-    pivot_spec, force_spec = normalise_pivot(pivot), normalise_force(cart_force)
-    cart0 = [as_float(cart_x0, "cart_x0", finite=True), as_float(cart_v0, "cart_v0", finite=True)]
-    if chain.cart is None and (cart0 != [0.0, 0.0] or force_spec is not None):
-        raise InputError("cart_x0, cart_v0 and cart_force need a chain with a cart (mp.Chain(..., cart=mp.Cart(mass)))")
+    pivot_spec, force_spec, cart0 = base_inputs(chain.cart is not None, pivot, cart_x0, cart_v0, cart_force)
     run: Dict[str, Any] = dict(method=method, form=form, t_end=t_end, dt=dt, rtol=rtol, atol=atol,
                                adaptive=bool(adaptive), max_steps=int(max_steps), torque=spec, joint=joint,
                                has_t_eval=t_eval is not None)
@@ -462,8 +465,8 @@ def simulate(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: 
         run["pivot"] = pivot_spec
     if force_spec is not None:
         run["cart_force"] = force_spec
-    if cart0 != [0.0, 0.0]:
-        run["cart0"] = cart0
+    if cart0 != (0.0, 0.0):
+        run["cart0"] = list(cart0)
     writer = None
     if checkpoint is not None:
         if batch_shape:

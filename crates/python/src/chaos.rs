@@ -6,6 +6,7 @@ use pyo3::prelude::*;
 
 use core::Watch;
 
+use crate::base::{take, Errors, PyAxis, PyCartForce};
 use crate::chain::PyChain;
 use crate::torque::{builtin_only, timed, PyTorque};
 use crate::{interruptible, slice, to_py, vec_out};
@@ -125,8 +126,9 @@ fn certified_indicators<'py>(
 }
 
 /// Lyapunov exponents by the variational equations; see `multipendulum_core::chaos::lyapunov`.
+/// A pivot function's own exception is re-raised as it was kept.
 #[pyfunction]
-#[pyo3(signature = (chain, theta0, omega0, t_end, *, dt, k, renorm_every, torque=None, progress=None))]
+#[pyo3(signature = (chain, theta0, omega0, t_end, *, dt, k=None, renorm_every, torque=None, pivot=None, cart_force=None, cart0=(0.0, 0.0), progress=None))]
 #[allow(clippy::too_many_arguments)]
 fn lyapunov<'py>(
     py: Python<'py>,
@@ -135,18 +137,23 @@ fn lyapunov<'py>(
     omega0: Vec<f64>,
     t_end: f64,
     dt: f64,
-    k: usize,
+    k: Option<usize>,
     renorm_every: u64,
     torque: Option<PyRef<'py, PyTorque>>,
+    pivot: Option<(PyRef<'py, PyAxis>, PyRef<'py, PyAxis>)>,
+    cart_force: Option<PyRef<'py, PyCartForce>>,
+    cart0: (f64, f64),
     progress: Option<Py<PyAny>>,
 ) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>)> {
     let c = &chain.inner;
     let torque = builtin_only(py, c.n(), torque.as_deref(), "lyapunov")?;
+    let errors: Errors = Default::default();
+    let drive = core::Drive { pivot: crate::base::pivot(py, pivot, &errors)?, force: crate::base::force(py, cart_force, &errors)? };
     let watch = Watch::new();
     let out = interruptible(py, &watch, progress.as_ref(), false, || {
-        core::chaos::lyapunov(c, &theta0, &omega0, t_end, dt, k, renorm_every, torque, &watch)
+        core::chaos::lyapunov(c, (&theta0, &omega0, [cart0.0, cart0.1]), t_end, dt, k, renorm_every, torque, drive, &watch)
     })?
-    .map_err(|e| to_py(py, e))?;
+    .map_err(|e| take(&errors).unwrap_or_else(|| to_py(py, e)))?;
     Ok((vec_out(py, out.exponents), vec_out(py, out.times), vec_out(py, out.history)))
 }
 

@@ -5,6 +5,7 @@ pub mod flipkernel;
 pub mod indicator_lanes;
 pub mod indicators;
 
+use crate::dynamics::base::Drive;
 use crate::dynamics::general::{Load, TANGENT_SCRATCH};
 use crate::dynamics::system::{singular, ChainSystem, Form, OdeSystem, NON_FINITE};
 use crate::dynamics::torque::{Builtin, Timed, TorqueSource};
@@ -17,13 +18,18 @@ use crate::par::*;
 use crate::watch::Watch;
 
 /// The Lagrangian form with `k` tangent vectors riding along:
-/// `y = [theta, omega, (d_theta, d_omega) x k]`, and with `megno` MEGNO's two integrals after
-/// them (see [`indicators`]).
+/// `y = [theta, omega, (x, v), (d_theta, d_omega, (d_x, d_v)) x k]` (the cart's entries where
+/// there is one), and with `megno` MEGNO's two integrals after them (see [`indicators`]). The
+/// base's drive (a moving pivot, a cart force of time) acts at each stage's time.
 struct Tangent<'c> {
     chain: &'c Chain,
     torque: Builtin,
+    drive: Drive,
     k: usize,
     megno: bool,
+    /// The general model's accelerations and tangents (losses, a cart, a moving pivot), else
+    /// the ideal chain's.
+    general: bool,
     ws: Workspace,
     tau: Vec<f64>,
     scratch: Vec<f64>,
@@ -31,26 +37,75 @@ struct Tangent<'c> {
 
 impl<'c> Tangent<'c> {
     fn new(chain: &'c Chain, torque: Builtin, k: usize, megno: bool) -> Self {
+        Self::driven(chain, torque, Drive::none(), k, megno)
+    }
+
+    /// With the base driven; the drive must fit the chain ([`Drive::check`]) and its cart
+    /// force be of time alone (its derivative along the state is not known).
+    fn driven(chain: &'c Chain, torque: Builtin, drive: Drive, k: usize, megno: bool) -> Self {
         let n = chain.n();
-        Tangent { chain, torque, k, megno, ws: Workspace::new(n), tau: vec![0.0; n], scratch: vec![0.0; TANGENT_SCRATCH * n] }
+        let general = !chain.is_ideal() || drive.moving_pivot().is_some();
+        Tangent { chain, torque, drive, k, megno, general, ws: Workspace::new(n), tau: vec![0.0; n], scratch: vec![0.0; TANGENT_SCRATCH * n] }
     }
 
     /// MEGNO's integrands (Cincotta & Simo 2000) from the first tangent vector `d` and its rate:
     /// `y' = t (d' . d) / (d . d)` and `w' = 2 y / t`, so that `Y = 2 y / t` and `<Y> = w / t`.
     /// The ratio does not depend on the vector's length, which may be renormalised freely.
     fn megno_rates(&self, t: f64, y: &[f64], dy: &mut [f64]) {
-        let n2 = 2 * self.chain.n();
-        let (v, dv) = (&y[n2..2 * n2], &dy[n2..2 * n2]);
+        let m = mechanical(self.chain);
+        let (v, dv) = (&y[m..2 * m], &dy[m..2 * m]);
         let ratio = dv.iter().zip(v).map(|(a, b)| a * b).sum::<f64>() / v.iter().map(|a| a * a).sum::<f64>();
-        let m = n2 * (1 + self.k);
-        dy[m] = t * ratio;
-        dy[m + 1] = if t > 0.0 { 2.0 * y[m] / t } else { 0.0 };
+        let at = m * (1 + self.k);
+        dy[at] = t * ratio;
+        dy[at + 1] = if t > 0.0 { 2.0 * y[at] / t } else { 0.0 };
     }
+
+    /// The general model's rates and tangents, the base's drive evaluated at `t`.
+    fn rhs_general(&mut self, t: f64, y: &[f64], dy: &mut [f64]) -> Result<()> {
+        let (n, m) = (self.chain.n(), mechanical(self.chain));
+        let cart = m > 2 * n;
+        let mut load = match self.drive.moving_pivot() {
+            Some(p) => Load::pivot(self.chain, p.eval(t)?.acc),
+            None => Load::still(self.chain),
+        };
+        if let Some(f) = self.drive.force.as_mut() {
+            load.cart_force = f.eval(t, &[])?;
+        }
+        let fail = |e| singular(t, y, e);
+        let (head, tail) = dy.split_at_mut(m);
+        let (theta, omega) = (&y[..n], &y[n..2 * n]);
+        let v = if cart { y[2 * n + 1] } else { 0.0 };
+        let r = self.chain.accelerations_general(theta, omega, v, &self.tau, &load, &mut head[n..2 * n], &mut self.ws).map_err(fail)?;
+        if cart {
+            head[2 * n] = v;
+            head[2 * n + 1] = r.cart;
+        }
+        for j in 0..self.k {
+            let d = &y[m * (j + 1)..m * (j + 2)];
+            let dd = &mut tail[m * j..m * (j + 1)];
+            dd[..n].copy_from_slice(&d[n..2 * n]);
+            let d_v = if cart { d[2 * n + 1] } else { 0.0 };
+            let d_a = self
+                .chain
+                .tangent_general(theta, omega, (&head[n..2 * n], r.cart), &load, (&d[..n], &d[n..2 * n], d_v), &mut dd[n..2 * n], &mut self.scratch, &mut self.ws)
+                .map_err(fail)?;
+            if cart {
+                dd[2 * n] = d_v;
+                dd[2 * n + 1] = d_a;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A chain's mechanical state's size: `2N`, and the cart's position and velocity.
+fn mechanical(chain: &Chain) -> usize {
+    2 * chain.n() + 2 * usize::from(chain.cart().is_some())
 }
 
 impl OdeSystem for Tangent<'_> {
     fn dim(&self) -> usize {
-        2 * self.chain.n() * (1 + self.k) + 2 * usize::from(self.megno)
+        mechanical(self.chain) * (1 + self.k) + 2 * usize::from(self.megno)
     }
 
     fn rhs(&mut self, t: f64, y: &[f64], dy: &mut [f64]) -> Result<()> {
@@ -59,34 +114,21 @@ impl OdeSystem for Tangent<'_> {
             self.torque.eval(t, &y[..n], &y[n..2 * n], &mut self.tau)?;
         }
         dy[..n].copy_from_slice(&y[n..2 * n]);
-        let fail = |e| singular(t, y, e);
-        let (head, tail) = dy.split_at_mut(2 * n);
-        let (theta, omega) = (&y[..n], &y[n..2 * n]);
-        if self.chain.lossy_joints() {
-            // Damping and friction: the general model's accelerations and exact tangents.
-            let load = Load::still(self.chain);
-            self.chain.accelerations_general(theta, omega, 0.0, &self.tau, &load, &mut head[n..], &mut self.ws).map_err(fail)?;
+        if self.general {
+            self.rhs_general(t, y, dy)?;
+        } else {
+            let fail = |e| singular(t, y, e);
+            let (head, tail) = dy.split_at_mut(2 * n);
+            let (theta, omega) = (&y[..n], &y[n..2 * n]);
+            self.chain.accelerations_into(theta, omega, &self.tau, &mut head[n..], &mut self.ws).map_err(fail)?;
             for j in 0..self.k {
                 let v = &y[2 * n * (j + 1)..2 * n * (j + 2)];
                 let dv = &mut tail[2 * n * j..2 * n * (j + 1)];
                 dv[..n].copy_from_slice(&v[n..]);
                 self.chain
-                    .tangent_general(theta, omega, (&head[n..], 0.0), &load, (&v[..n], &v[n..], 0.0), &mut dv[n..], &mut self.scratch, &mut self.ws)
+                    .tangent_accelerations_into(theta, omega, &head[n..], &v[..n], &v[n..], &mut dv[n..], &mut self.scratch, &mut self.ws)
                     .map_err(fail)?;
             }
-            if self.megno {
-                self.megno_rates(t, y, dy);
-            }
-            return Ok(());
-        }
-        self.chain.accelerations_into(theta, omega, &self.tau, &mut head[n..], &mut self.ws).map_err(fail)?;
-        for j in 0..self.k {
-            let v = &y[2 * n * (j + 1)..2 * n * (j + 2)];
-            let dv = &mut tail[2 * n * j..2 * n * (j + 1)];
-            dv[..n].copy_from_slice(&v[n..]);
-            self.chain
-                .tangent_accelerations_into(theta, omega, &head[n..], &v[..n], &v[n..], &mut dv[n..], &mut self.scratch, &mut self.ws)
-                .map_err(fail)?;
         }
         if self.megno {
             self.megno_rates(t, y, dy);
@@ -107,19 +149,22 @@ pub struct Lyapunov {
 
 /// The `k` largest Lyapunov exponents (1/s) by integrating the variational equations with rk4 at
 /// step `dt` and re-orthonormalising the tangent vectors (modified Gram–Schmidt, Benettin et al.
-/// 1980) every `renorm_every` steps. `k = 2N` gives the full spectrum. Torques may depend on time.
+/// 1980) every `renorm_every` steps. `k = None` gives the full spectrum: `2N` exponents, and on a
+/// cart `2N + 2` (the state `(theta, omega, x, v)`; the cart's position is a neutral direction,
+/// an exponent of zero). Torques, a moving pivot and a cart force may depend on time, not on the
+/// state. `start` is `(theta0, omega0, [x0, v0])` (the cart's, ignored without one).
 /// A specialised kernel (the tangent vectors are renormalised between steps), so it steps the
 /// integrator itself on the driver's grid `t_k = k dt`; `watch` stops it and shows its progress.
 #[allow(clippy::too_many_arguments)]
 pub fn lyapunov(
     chain: &Chain,
-    theta0: &[f64],
-    omega0: &[f64],
+    (theta0, omega0, cart0): (&[f64], &[f64], [f64; 2]),
     t_end: f64,
     dt: f64,
-    k: usize,
+    k: Option<usize>,
     renorm_every: u64,
     torque: Builtin,
+    drive: Drive,
     watch: &Watch,
 ) -> Result<Lyapunov> {
     let n = chain.n();
@@ -131,24 +176,34 @@ pub fn lyapunov(
     if !(dt.is_finite() && dt > 0.0 && dt <= t_end) {
         return Err(Error::input(format!("dt must be > 0, finite and <= t_end, got {dt}")));
     }
-    if k == 0 || k > 2 * n {
-        return Err(Error::input(format!("k must be between 1 and 2N = {}, got {k}", 2 * n)));
+    let m = mechanical(chain);
+    let k = k.unwrap_or(m);
+    if k == 0 || k > m {
+        let size = if m > 2 * n { format!("2N + 2 = {m} (the angles, their rates and the cart's)") } else { format!("2N = {m}") };
+        return Err(Error::input(format!("k must be between 1 and {size}, got {k}")));
     }
     if renorm_every == 0 {
         return Err(Error::input("renorm_every must be >= 1 step, got 0"));
     }
-    if chain.cart().is_some() {
+    drive.check(chain)?;
+    if drive.force.as_ref().is_some_and(|f| f.is_feedback()) {
         return Err(Error::input(
-            "Lyapunov exponents are computed for chains on a fixed pivot, not on a cart (the cart's position is a neutral direction)",
+            "Lyapunov exponents take a cart force of time alone (a number, Sinusoid or Table), not a function of the state (its derivative along the state is not known)",
         ));
     }
-    let mut sys = Tangent::new(chain, torque, k, false);
+    if !cart0.iter().all(|v| v.is_finite()) {
+        return Err(Error::input(format!("the cart's initial position and velocity must be finite, got {cart0:?}")));
+    }
+    let mut sys = Tangent::driven(chain, torque, drive, k, false);
     let d = sys.dim();
     let mut y = vec![0.0; d];
     y[..n].copy_from_slice(theta0);
     y[n..2 * n].copy_from_slice(omega0);
+    if m > 2 * n {
+        y[2 * n..m].copy_from_slice(&cart0);
+    }
     for j in 0..k {
-        y[2 * n * (j + 1) + j] = 1.0; // unit vectors: an orthonormal start
+        y[m * (j + 1) + j] = 1.0; // unit vectors: an orthonormal start
     }
     let steps = (t_end / dt).round().max(1.0);
     check_steps(steps, "t_end / dt")?;
@@ -165,7 +220,7 @@ pub fn lyapunov(
     let mut sums = vec![0.0; k];
     let mut out = Lyapunov { exponents: vec![0.0; k], times: Vec::new(), history: Vec::new() };
     for step in 1..=steps {
-        let t = (step - 1) as f64 * dt;
+        let (t, t_next) = ((step - 1) as f64 * dt, step as f64 * dt);
         if step % 64 == 0 {
             watch.check(t)?;
             watch.set_fraction(step as f64 / steps as f64);
@@ -174,27 +229,26 @@ pub fn lyapunov(
         std::mem::swap(&mut y, &mut y_new);
         if step % renorm_every == 0 || step == steps {
             if !y.iter().all(|v| v.is_finite()) {
-                return Err(Error::integration(t + dt, NON_FINITE));
+                return Err(Error::integration(t_next, NON_FINITE));
             }
-            let (_, vs) = y.split_at_mut(2 * n);
+            let (_, vs) = y.split_at_mut(m);
             for j in 0..k {
-                let (done, rest) = vs.split_at_mut(2 * n * j);
-                let v = &mut rest[..2 * n];
+                let (done, rest) = vs.split_at_mut(m * j);
+                let v = &mut rest[..m];
                 for i in 0..j {
-                    let u = &done[2 * n * i..2 * n * (i + 1)];
+                    let u = &done[m * i..m * (i + 1)];
                     let dot: f64 = u.iter().zip(v.iter()).map(|(a, b)| a * b).sum();
                     v.iter_mut().zip(u).for_each(|(b, a)| *b -= dot * a);
                 }
                 let norm = v.iter().map(|x| x * x).sum::<f64>().sqrt();
                 if !(norm > 0.0) {
-                    return Err(Error::integration(t + dt, "a tangent vector collapsed; renormalise more often"));
+                    return Err(Error::integration(t_next, "a tangent vector collapsed; renormalise more often"));
                 }
                 sums[j] += norm.ln();
                 v.iter_mut().for_each(|x| *x /= norm);
             }
-            let time = step as f64 * dt;
-            out.times.push(time);
-            out.history.extend(sums.iter().map(|s| s / time));
+            out.times.push(t_next);
+            out.history.extend(sums.iter().map(|s| s / t_next));
         }
     }
     out.exponents = sums.iter().map(|s| s / (steps as f64 * dt)).collect();
@@ -460,9 +514,9 @@ mod tests {
     #[test]
     fn small_oscillations_have_near_zero_exponents_and_the_spectrum_sums_to_zero() {
         let chain = Chain::new(&[1.0, 1.0], &[1.0, 1.0], None, None, 9.81).unwrap();
-        let small = lyapunov(&chain, &[0.01, 0.0], &[0.0, 0.0], 200.0, 0.01, 4, 10, Builtin::None, &Watch::new()).unwrap();
+        let small = lyapunov(&chain, (&[0.01, 0.0], &[0.0, 0.0], [0.0; 2]), 200.0, 0.01, None, 10, Builtin::None, Drive::none(), &Watch::new()).unwrap();
         assert!(small.exponents.iter().all(|l| l.abs() < 0.05), "{:?}", small.exponents);
-        let chaotic = lyapunov(&chain, &[2.0, 2.5], &[0.0, 0.0], 200.0, 0.005, 4, 10, Builtin::None, &Watch::new()).unwrap();
+        let chaotic = lyapunov(&chain, (&[2.0, 2.5], &[0.0, 0.0], [0.0; 2]), 200.0, 0.005, Some(4), 10, Builtin::None, Drive::none(), &Watch::new()).unwrap();
         let sum: f64 = chaotic.exponents.iter().sum();
         assert!(chaotic.exponents[0] > 0.5, "{:?}", chaotic.exponents);
         assert!(sum.abs() < 0.02 * chaotic.exponents[0], "{:?}", chaotic.exponents);
