@@ -149,6 +149,24 @@ def test_fractal_command_writes_zarr_through_dask(tmp_path, capsys):
     assert tuple(fm.times.chunks)[0] == 5
 
 
+def test_fractal_command_maps_a_scenarios_shaken_pivot(tmp_path, capsys):
+    pytest.importorskip("dask.array")
+    pytest.importorskip("zarr")
+    scenario = tmp_path / "shaken.toml"
+    scenario.write_text(SCENARIO + '[pivot]\nx = { kind = "sinusoid", amplitude = 0.1, frequency = 6.0 }\n')
+    args = ["fractal", str(scenario), "-o", str(tmp_path / "m.png"), "--size", "12", "--t-max", "2",
+            "--zarr", str(tmp_path / "m.zarr"), "--dask", "threads"]
+    assert main(args) == 0
+    text = capsys.readouterr().out
+    assert "no energy bound (the pivot moves)" in text and "no flip possible" not in text
+    fm = mp.open_flip_map(tmp_path / "m.zarr")
+    x = np.radians(-180 + 30 * (np.arange(12) + 0.5))
+    shaken = mp.Pivot(x=mp.Sinusoid(amplitude=0.1, frequency=6.0))
+    ref = mp.flip_map(DOUBLE, x, x, t_max=2.0, base_omega=[0, 0], pivot=shaken)
+    np.testing.assert_array_equal(fm.times[:], ref.times)
+    assert (ref.times != mp.flip_map(DOUBLE, x, x, t_max=2.0).times).any()  # the pivot was applied
+
+
 @pytest.mark.parametrize("extra, message", [
     (["--x", "theta3"], "--x must be theta1..theta2 or omega1..omega2, got 'theta3'"),
     (["--y", "theta1"], "--x and --y must differ"),

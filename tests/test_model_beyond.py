@@ -3,6 +3,7 @@ convergence orders, the energy balance in both forms, the Gauss methods' Newton 
 stiff stages, Lyapunov spectra of damped chains against the phase-space contraction rate, the
 Kapitza threshold, checkpoints and batches, and the bad input each gets. (The equations
 themselves are checked against an independent symbolic derivation in test_model_derivation.py.)"""
+import importlib.util
 import math
 
 import numpy as np
@@ -249,6 +250,67 @@ def test_lyapunov_refuses_what_it_cannot_differentiate_and_bad_base_inputs():
     a = mp.lyapunov(fixed, [0.5, 0.2], [0.0, 0.0], 1.0, dt=0.001, pivot=mp.Pivot(y=kapitza)).exponents
     b = mp.lyapunov(fixed, [0.5, 0.2], [0.0, 0.0], 1.0, dt=0.001, pivot=mp.Pivot(y=mp.Sinusoid(amplitude=0.02, frequency=200.0))).exponents
     np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("a", [3.0, -2.0])
+def test_flip_times_on_an_accelerating_pivot_converge_to_the_closed_form(a):
+    # A point mass on a pivot accelerating at a along x feels the gravity (-a, -g): from
+    # (1/2) m l^2 w^2 + m l (a sin th - g cos th) = const, the time to reach pi is the integral of
+    # d(th) / w(th), by quadrature. The pivot is a function of time (the Python route).
+    scipy_integrate = pytest.importorskip("scipy.integrate")
+    l, g, th0, w0 = 0.8, 9.81, 0.3, 8.0
+    potential = lambda th: (a * math.sin(th) - g * math.cos(th)) / l  # noqa: E731
+    rate = lambda th: math.sqrt(w0 * w0 + 2.0 * (potential(th0) - potential(th)))  # noqa: E731
+    assert min(rate(th) for th in np.linspace(th0, math.pi, 1001)) > 0.5  # it goes over, never turning
+    exact = scipy_integrate.quad(lambda th: 1.0 / rate(th), th0, math.pi, epsabs=1e-14, epsrel=1e-13)[0]
+    pivot = mp.Pivot(x=lambda t: (0.5 * a * t * t, a * t, a))
+    chain = mp.Chain([l], [1.0], g=g)
+    err = [abs(float(mp.flip_times(chain, [th0], [w0], t_max=5.0, dt=dt, pivot=pivot)) - exact) for dt in (0.02, 0.01)]
+    assert err[1] < 1e-7 and err[0] / err[1] > 8.0, (err, exact)  # rk4 and the cubic interpolant: order 4
+    # The pivot is what moves it: on a fixed pivot the same start takes another time.
+    assert abs(float(mp.flip_times(chain, [th0], [w0], t_max=5.0, dt=0.01)) - exact) > 1e-2
+
+
+def test_flip_maps_of_a_shaken_chain_have_no_energy_bound_and_follow_single_runs():
+    chain = mp.Chain.rods([1.0, 0.7], [1.0, 2.0])
+    x = np.linspace(-3.0, 3.0, 9)
+    fm = mp.flip_map(chain, x, x, t_max=4.0, dt=0.01, pivot=SHAKE)
+    # A shaken pivot pumps energy in: no cell is marked impossible.
+    assert fm.threshold == -np.inf and fm.allowed.all()
+    # Each cell is its state's flip in a single run (simulate's rk4 on the same steps and its Flip
+    # event, to the step's round-off), and the map differs from the fixed pivot's.
+    th = np.stack(np.meshgrid(x, x), axis=-1)
+    for i, j in [(0, 3), (2, 5), (4, 1), (6, 6), (8, 2)]:
+        s = mp.simulate(chain, th[i, j], [0.0, 0.0], 4.0, method="rk4", dt=0.01, pivot=SHAKE, events=[mp.Flip()])
+        flip = s.events[0].t[0] if s.events[0].t.size else np.inf
+        assert fm.times[i, j] == pytest.approx(flip, abs=1e-9), (i, j)
+    fixed = mp.flip_map(chain, x, x, t_max=4.0, dt=0.01)
+    assert np.isfinite(fixed.threshold) and (fm.times != fixed.times).any()
+    # A pivot held away from the origin moves nothing: the fixed pivot's map and bound, bit for bit.
+    held = mp.flip_map(chain, x, x, t_max=4.0, dt=0.01, pivot=mp.Pivot(x=0.3, y=-0.2))
+    np.testing.assert_array_equal(held.times, fixed.times)
+    assert held.threshold == fixed.threshold
+    # Certified and swept maps take the pivot too.
+    certified = mp.flip_map(chain, x, x, t_max=4.0, dt=0.01, pivot=SHAKE, certify=True)
+    np.testing.assert_array_equal(certified.times, fm.times)
+    if importlib.util.find_spec("dask") is not None:
+        np.testing.assert_array_equal(mp.sweep_flip_map(chain, x, x, t_max=4.0, dt=0.01, pivot=SHAKE, chunks=4).times, fm.times)
+        np.testing.assert_array_equal(mp.sweep(chain, th, t_max=4.0, dt=0.01, pivot=SHAKE, chunks=3), fm.times)
+
+
+def test_flip_times_refuse_a_bad_pivot_and_keep_its_functions_exception():
+    chain = mp.Chain([1.0, 0.8], [1.0, 1.5])
+    with pytest.raises(mp.InputError, match="pivot must be a multipendulum.Pivot, got str"):
+        mp.flip_times(chain, [[0.5, 0.2]], t_max=1.0, pivot="shaken")
+    with pytest.raises(mp.InputError, match="a chain on a cart has no prescribed pivot motion"):
+        mp.flip_times(mp.Chain([1.0], [1.0], cart=mp.Cart(1.0)), [[0.5]], t_max=1.0, pivot=SHAKE)
+
+    def boom(t):
+        raise ZeroDivisionError("my pivot failed")
+
+    with pytest.raises(mp.InputError, match=r"the pivot x function raised ZeroDivisionError\('my pivot failed'\) at t = 0") as info:
+        mp.flip_times(chain, np.zeros((20, 2)) + 0.5, t_max=1.0, pivot=mp.Pivot(x=boom))
+    assert isinstance(info.value.__cause__, ZeroDivisionError)
 
 
 @pytest.mark.parametrize("frequency, upright", [(300.0, True), (100.0, False)])

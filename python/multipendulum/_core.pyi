@@ -160,9 +160,11 @@ def lyapunov(chain: Chain, theta0: Sequence[float], omega0: Sequence[float], t_e
              cart0: Tuple[float, float] = ...,
              progress: Optional[Callable[[float], Any]] = None) -> Tuple[_F64, _F64, _F64]: ...
 def first_flips(chain: Chain, theta0: _F64, omega0: _F64, t_max: float, *, dt: float, link: Optional[int] = None,
-                torque: Optional[Torque] = None, progress: Optional[Callable[[float], Any]] = None) -> _F64: ...
+                torque: Optional[Torque] = None, pivot: Optional[Tuple[Axis, Axis]] = None,
+                progress: Optional[Callable[[float], Any]] = None) -> _F64: ...
 def certified_flips(chain: Chain, theta0: _F64, omega0: _F64, t_max: float, *, dt: float, link: Optional[int] = None,
-                    torque: Optional[Torque] = None, tolerance: Optional[float] = None,
+                    torque: Optional[Torque] = None, pivot: Optional[Tuple[Axis, Axis]] = None,
+                    tolerance: Optional[float] = None,
                     progress: Optional[Callable[[float], Any]] = None) -> Tuple[_F64, npt.NDArray[np.bool_], float]: ...
 def ensemble(chain: Chain, theta0: _F64, omega0: _F64, t_end: float, *, method: str, dt: Optional[float] = None,
              rtol: float, atol: float, torque: Optional[Torque] = None,

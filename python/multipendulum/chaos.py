@@ -9,6 +9,7 @@ import numpy as np
 import numpy.typing as npt
 
 import multipendulum._core as _core
+from ._base import Pivot, core_pivot, normalise_pivot
 from ._chain import Chain, as_state, check_chain
 from ._convert import Integer, as_float, as_floats
 from ._progress import Progress, reporter
@@ -45,11 +46,21 @@ def flip_energy_threshold(chain: Chain, link: Optional[Integer] = None) -> float
 
 def flip_times(chain: Chain, theta0: npt.ArrayLike, omega0: Optional[npt.ArrayLike] = None, t_max: float = 10.0,
                dt: float = 0.01, link: Optional[Integer] = None,
-               torque: Optional[TorqueLike] = None, progress: Progress = None) -> npt.NDArray[np.float64]:
+               torque: Optional[TorqueLike] = None, progress: Progress = None, *,
+               pivot: Optional[Pivot] = None) -> npt.NDArray[np.float64]:
     """First time each initial state's link ``link`` (None: any link) reaches |theta| = pi,
     by rk4 at step ``dt`` and root finding within the step; ``inf`` where it never does by
-    ``t_max``. ``theta0`` (..., N); ``omega0`` defaults to rest. Parallel on all cores;
-    ``progress`` as for :func:`lyapunov`, and Ctrl-C stops the work."""
+    ``t_max``. ``theta0`` (..., N); ``omega0`` defaults to rest. ``pivot``: a :class:`Pivot`
+    whose motion drives the chain (each trajectory's rk4 run one at a time, in parallel; a
+    fixed pivot's chain runs in the SIMD lanes). Parallel on all cores; ``progress`` as for
+    :func:`lyapunov`, and Ctrl-C stops the work.
+
+    >>> import multipendulum as mp
+    >>> shaken = mp.Pivot(x=mp.Sinusoid(amplitude=0.1, frequency=6.0))
+    >>> t = mp.flip_times(mp.Chain([1.0], [1.0]), [[2.5], [0.5]], t_max=10.0, pivot=shaken)
+    >>> bool(t[0] < t[1])  # the higher start goes over first
+    True
+    """
     check_chain(chain)
     th0 = as_state(theta0, "theta0", chain.n)
     om0 = np.zeros_like(th0) if omega0 is None else as_state(omega0, "omega0", chain.n)
@@ -58,7 +69,8 @@ def flip_times(chain: Chain, theta0: npt.ArrayLike, omega0: Optional[npt.ArrayLi
     spec, _ = normalise_torque(torque, None, chain.n)
     with reporter(progress, "flip times") as report:
         out = _core.first_flips(chain._c, th0.ravel(), om0.ravel(), as_float(t_max, "t_max"), dt=as_float(dt, "dt"),
-                                link=_link(link, chain.n), torque=core_torque(spec, False), progress=report)
+                                link=_link(link, chain.n), torque=core_torque(spec, False),
+                                pivot=core_pivot(normalise_pivot(pivot)), progress=report)
     return out.reshape(th0.shape[:-1])
 
 
@@ -85,7 +97,8 @@ class FlipMap:
 def certified_flip_times(chain: Chain, theta0: npt.ArrayLike, omega0: Optional[npt.ArrayLike] = None,
                          t_max: float = 10.0, dt: float = 0.01, link: Optional[Integer] = None,
                          torque: Optional[TorqueLike] = None, time_tolerance: Optional[float] = None,
-                         progress: Progress = None) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.bool_], float]:
+                         progress: Progress = None, *,
+                         pivot: Optional[Pivot] = None) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.bool_], float]:
     """:func:`flip_times` at ``dt`` and again at ``dt / 2``: ``(times, uncertain, tolerance)``,
     the times at ``dt`` and, per initial state, whether it is uncertain: the two runs disagree on
     whether it flips by ``t_max``, or on when by more than ``time_tolerance`` (s; default one step
@@ -100,13 +113,17 @@ def certified_flip_times(chain: Chain, theta0: npt.ArrayLike, omega0: Optional[n
     with reporter(progress, "certified flip times") as report:
         times, uncertain, used = _core.certified_flips(
             chain._c, th0.ravel(), om0.ravel(), as_float(t_max, "t_max"), dt=as_float(dt, "dt"),
-            link=_link(link, chain.n), torque=core_torque(spec, False), tolerance=tolerance, progress=report)
+            link=_link(link, chain.n), torque=core_torque(spec, False), pivot=core_pivot(normalise_pivot(pivot)),
+            tolerance=tolerance, progress=report)
     return times.reshape(th0.shape[:-1]), uncertain.reshape(th0.shape[:-1]), used
 
 
-def flip_threshold(chain: Chain, link: Optional[Integer], torque: Optional[TorqueLike]) -> float:
-    """The energy bound a map marks: none (-inf) for a driven chain, which can gain energy."""
-    return flip_energy_threshold(chain, link) if torque is None else -np.inf
+def flip_threshold(chain: Chain, link: Optional[Integer], torque: Optional[TorqueLike],
+                   pivot: Optional[Pivot] = None) -> float:
+    """The energy bound a map marks: none (-inf) for a driven chain, which can gain energy (under
+    a torque, or on a pivot that moves: any axis not a number)."""
+    moving = pivot is not None and not all(isinstance(a, (int, float)) for a in (pivot.x, pivot.y))
+    return flip_energy_threshold(chain, link) if torque is None and not moving else -np.inf
 
 
 def _check_vary(vary: Vary, n: int) -> Tuple[str, int, str, int]:
@@ -159,14 +176,14 @@ def flip_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_max: float = 10
              vary: Vary = ("theta", 0, "theta", 1), base_theta: Optional[npt.ArrayLike] = None,
              base_omega: Optional[npt.ArrayLike] = None, link: Optional[Integer] = None,
              torque: Optional[TorqueLike] = None, certify: bool = False, time_tolerance: Optional[float] = None,
-             progress: Progress = None) -> FlipMap:
+             progress: Progress = None, *, pivot: Optional[Pivot] = None) -> FlipMap:
     """Flip-time map over a grid of two initial values (radians or rad/s).
 
     ``vary=(kind_x, index_x, kind_y, index_y)`` names the two varied quantities, each ``"theta"``
     or ``"omega"`` of a link (default: theta_1 along x, theta_2 along y, from rest). The rest of
-    the initial state is ``base_theta`` / ``base_omega`` (default 0). Under a ``torque`` the chain
-    can gain energy, so no cell is marked impossible (``threshold = -inf``). ``progress`` as for
-    :func:`lyapunov`.
+    the initial state is ``base_theta`` / ``base_omega`` (default 0). Under a ``torque``, or on a
+    moving ``pivot`` (:func:`flip_times`), the chain can gain energy, so no cell is marked
+    impossible (``threshold = -inf``). ``progress`` as for :func:`lyapunov`.
 
     ``certify=True`` computes every cell again at ``dt / 2`` (as :func:`certified_flip_times`)
     and fills ``uncertain``: the cells whose flip decision, or time by more than
@@ -188,10 +205,11 @@ def flip_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_max: float = 10
     if check_certify(certify, time_tolerance):
         times, uncertain, tolerance = certified_flip_times(chain, theta0, omega0, t_max=t_max, dt=dt, link=link,
                                                            torque=torque, time_tolerance=time_tolerance,
-                                                           progress=progress)
+                                                           progress=progress, pivot=pivot)
     else:
-        times = flip_times(chain, theta0, omega0, t_max=t_max, dt=dt, link=link, torque=torque, progress=progress)
-    threshold = flip_threshold(chain, link, torque)
+        times = flip_times(chain, theta0, omega0, t_max=t_max, dt=dt, link=link, torque=torque, progress=progress,
+                           pivot=pivot)
+    threshold = flip_threshold(chain, link, torque, pivot)
     allowed = cast("npt.NDArray[np.bool_]", chain.energy(theta0, omega0) >= threshold)  # theta0 has a grid's axes
     return FlipMap(x, y, times, allowed, float(t_max), threshold, uncertain, tolerance)
 
@@ -243,7 +261,8 @@ def flip_volume(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, z: npt.ArrayLi
                 dt: float = 0.01, vary: Vary3 = ("theta", 0, "theta", 1, "theta", 2),
                 base_theta: Optional[npt.ArrayLike] = None, base_omega: Optional[npt.ArrayLike] = None,
                 link: Optional[Integer] = None, torque: Optional[TorqueLike] = None, certify: bool = False,
-                time_tolerance: Optional[float] = None, progress: Progress = None) -> FlipVolume:
+                time_tolerance: Optional[float] = None, progress: Progress = None, *,
+                pivot: Optional[Pivot] = None) -> FlipVolume:
     """A flip-time map over a grid of three initial values (default the triple pendulum's three
     angles): :func:`flip_map` with a third axis ``z``, ``times`` of shape ``(len(z), len(y),
     len(x))``. Held in memory: for large grids :func:`multipendulum.sweeps.sweep_flip_volume`
@@ -274,10 +293,11 @@ def flip_volume(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, z: npt.ArrayLi
     if check_certify(certify, time_tolerance):
         times, uncertain, tolerance = certified_flip_times(chain, theta0, omega0, t_max=t_max, dt=dt, link=link,
                                                            torque=torque, time_tolerance=time_tolerance,
-                                                           progress=progress)
+                                                           progress=progress, pivot=pivot)
     else:
-        times = flip_times(chain, theta0, omega0, t_max=t_max, dt=dt, link=link, torque=torque, progress=progress)
-    threshold = flip_threshold(chain, link, torque)
+        times = flip_times(chain, theta0, omega0, t_max=t_max, dt=dt, link=link, torque=torque, progress=progress,
+                           pivot=pivot)
+    threshold = flip_threshold(chain, link, torque, pivot)
     allowed = cast("npt.NDArray[np.bool_]", chain.energy(theta0, omega0) >= threshold)
     return FlipVolume(x, y, z, times, allowed, float(t_max), threshold, vary3, uncertain, tolerance)
 

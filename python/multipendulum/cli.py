@@ -492,9 +492,10 @@ def _add_fractal(sub, common) -> None:
                     "against theta_2 over -180..180 degrees, the other values from the scenario's "
                     "[initial]) and colour each by the time its first flip (a link over the top) took. "
                     "Where the energy is below the least a flip needs, no flip is possible: that region "
-                    "is hatched and its boundary, the energy bound, drawn. The map is of the free chain "
-                    "(a scenario's torque is not applied). Runs on all cores; --dask spreads it over a "
-                    "cluster and --zarr writes it chunk by chunk.",
+                    "is hatched and its boundary, the energy bound, drawn. The map is of the chain with "
+                    "its losses and its pivot's motion (a shaken pivot: no energy bound), not the "
+                    "scenario's torque. Runs on all cores; --dask spreads it over a cluster and --zarr "
+                    "writes it chunk by chunk.",
     )
     _add_map_options(p, zarr_what="times, allowed, x, y")
     p.add_argument("--z", metavar="QUANTITY",
@@ -617,6 +618,14 @@ def _fractal_budget(args, n: int, t_max: float) -> None:
                 "over a cluster with --dask ADDRESS")
 
 
+def _bound_share(threshold: float, forbidden: int, total: int) -> str:
+    """The summary's words on the energy bound: the share of cells below it, or that there is
+    none (a moving pivot can pump energy in)."""
+    if threshold == float("-inf"):
+        return "no energy bound (the pivot moves)"
+    return f"no flip possible (energy below E_flip = {threshold:.4g} J) {100 * forbidden / total:.1f}%"
+
+
 def _flip_map_in_blocks(chain, x, y, report, **kwargs):
     """``mp.flip_map`` computed a block of rows at a time, reporting the fraction of initial
     states done after each block: the same map, bit for bit (each state's flip time does not
@@ -707,14 +716,16 @@ def _cmd_fractal(args) -> int:
     x, y = _map_axes(args, vary)
     if args.time_tolerance is not None and not args.certify:
         raise mp.InputError("--time-tolerance applies to a certified map: add --certify")
+    # A moving pivot is applied (the chain on a cart is mapped with the cart starting at rest).
+    pivot = scenario.build_base().get("pivot")
     kwargs = dict(t_max=t_max, dt=args.dt, vary=vary, base_theta=scenario.theta0, base_omega=scenario.omega0,
-                  link=link, certify=args.certify, time_tolerance=args.time_tolerance)
+                  link=link, certify=args.certify, time_tolerance=args.time_tolerance, pivot=pivot)
     # Arguments checked on no states, so that a bad one fails here and not in the first block.
     if args.certify:
         mp.certified_flip_times(chain, np.zeros((0, n)), t_max=t_max, dt=args.dt, link=link,
-                                time_tolerance=args.time_tolerance)
+                                time_tolerance=args.time_tolerance, pivot=pivot)
     else:
-        mp.flip_times(chain, np.zeros((0, n)), t_max=t_max, dt=args.dt, link=link)
+        mp.flip_times(chain, np.zeros((0, n)), t_max=t_max, dt=args.dt, link=link, pivot=pivot)
     title = scenario.name or args.scenario.stem
     if getattr(args, "z", None) is not None:
         return _fractal_volume(args, scenario, chain, vary, x, y, title, kwargs)
@@ -741,7 +752,7 @@ def _cmd_fractal(args) -> int:
     total = args.size * args.size
     flipped, never, forbidden, uncertain = _fractal_counts(fm)
     _say(args, f"  flipped {100 * flipped / total:.1f}%, no flip by t_max {100 * never / total:.1f}%, "
-               f"no flip possible (energy below E_flip = {fm.threshold:.4g} J) {100 * forbidden / total:.1f}%; "
+               f"{_bound_share(fm.threshold, forbidden, total)}; "
                f"wall time {wall:.3g} s")
     if fm.uncertain is not None:
         _say(args, f"  uncertain: {uncertain} of {total} cells ({100 * uncertain / total:.1f}%) change their flip "
@@ -805,7 +816,7 @@ def _fractal_volume(args, scenario, chain, vary, x, y, title: str, kwargs) -> in
     counts = np.sum([_fractal_counts(fv.slice(k)) for k in range(z.size)], axis=0)
     flipped, never, forbidden, uncertain = (int(c) for c in counts)
     _say(args, f"  flipped {100 * flipped / total:.1f}%, no flip by t_max {100 * never / total:.1f}%, "
-               f"no flip possible (energy below E_flip = {fv.threshold:.4g} J) {100 * forbidden / total:.1f}%; "
+               f"{_bound_share(fv.threshold, forbidden, total)}; "
                f"wall time {wall:.3g} s")
     if fv.uncertain is not None:
         _say(args, f"  uncertain: {uncertain} of {total} cells ({100 * uncertain / total:.1f}%) change their flip "
@@ -969,6 +980,8 @@ def _cmd_atlas(args) -> int:
                f"t_end = {t_end:g} s, dt = {dt:g} s" + (" (certified: again at dt/2)" if args.certify else ""))
     if scenario.torque is not None:
         _say(args, "  note: the scenario's torque is not applied; the map is of the free chain")
+    if scenario.pivot is not None:
+        _say(args, "  note: the scenario's pivot motion is not applied (the indicators take a fixed pivot)")
     start = time.perf_counter()
     with ProgressBar(f"{name} map", quiet=args.quiet) as bar:
         if args.dask is not None or args.zarr is not None or args.chunks is not None:

@@ -49,6 +49,7 @@ import numpy as np
 import numpy.typing as npt
 
 import multipendulum._core as _core
+from ._base import Pivot
 from ._chain import Chain, as_state
 from ._convert import Integer
 from ._progress import check as _check_progress
@@ -231,23 +232,24 @@ def _fresh_store(path: str, kind: str, attrs: Dict[str, Any]) -> Iterator[ZarrGr
 
 
 def _times_block(theta: npt.NDArray[np.float64], omega: npt.NDArray[np.float64], chain: Chain, t_max: float,
-                 dt: float, link: Optional[Integer], torque: Optional[TorqueLike]) -> npt.NDArray[np.float64]:
+                 dt: float, link: Optional[Integer], torque: Optional[TorqueLike],
+                 pivot: Optional[Pivot]) -> npt.NDArray[np.float64]:
     # One task: a contiguous block of initial states, shape (rows, ..., N) -> (rows, ...).
-    return flip_times(chain, theta, omega, t_max=t_max, dt=dt, link=link, torque=torque)
+    return flip_times(chain, theta, omega, t_max=t_max, dt=dt, link=link, torque=torque, pivot=pivot)
 
 
 def sweep(chain: Chain, theta0: npt.ArrayLike, omega0: Optional[npt.ArrayLike] = None, t_max: float = 10.0,
           dt: float = 0.01, link: Optional[Integer] = None, torque: Optional[TorqueLike] = None,
           chunks: Optional[Integer] = None, scheduler: Scheduler = None, zarr: Optional[PathLike] = None,
-          progress: Progress = None) -> Union[npt.NDArray[np.float64], ZarrArray]:
+          progress: Progress = None, *, pivot: Optional[Pivot] = None) -> Union[npt.NDArray[np.float64], ZarrArray]:
     """:func:`multipendulum.flip_times` over a large batch of initial states, on Dask.
 
     ``theta0`` (and ``omega0``, default rest) of shape (B, ..., N) is split along its first axis
     into chunks of ``chunks`` rows (default: about :data:`DEFAULT_CHUNK_SIZE` trajectories per
     chunk); each chunk is one task. Returns the flip times, shape (B, ...), ``inf`` where link
     ``link`` (None: any link) never went over the top by ``t_max``: a NumPy array, or the Zarr
-    array written at ``zarr`` when given. ``torque`` must pickle to reach other processes (the
-    built-ins and arrays do). See the module docstring for ``scheduler`` and ``progress``.
+    array written at ``zarr`` when given. ``torque`` and ``pivot`` (:class:`multipendulum.Pivot`)
+    must pickle to reach other processes (the built-ins and arrays do). See the module docstring for ``scheduler`` and ``progress``.
 
     >>> import numpy as np, multipendulum as mp
     >>> chain = mp.Chain([1, 1], [1, 1])
@@ -266,15 +268,15 @@ def sweep(chain: Chain, theta0: npt.ArrayLike, omega0: Optional[npt.ArrayLike] =
     if th0.ndim < 2:
         raise InputError(f"theta0 must have a batch axis, shape (B, ..., {chain.n}), got {th0.shape}")
     path = _check_zarr_path(zarr)
-    # Check t_max, dt, link and torque here, on no states, rather than in every task.
-    flip_times(chain, th0.reshape(-1, chain.n)[:0], t_max=t_max, dt=dt, link=link, torque=torque)
+    # Check t_max, dt, link, torque and pivot here, on no states, rather than in every task.
+    flip_times(chain, th0.reshape(-1, chain.n)[:0], t_max=t_max, dt=dt, link=link, torque=torque, pivot=pivot)
     per_row = max(1, math.prod(th0.shape[1:-1]))
     rows = max(1, DEFAULT_CHUNK_SIZE // per_row) if chunks is None else _positive_int(chunks, "chunks")
     block = (rows,) + th0.shape[1:]
     _check_chunks(rows, per_row, chain.n, -(-th0.shape[0] // rows))
     th = da.from_array(th0, chunks=block)
     om = da.from_array(om0, chunks=block)
-    times = da.map_blocks(_times_block, th, om, chain, float(t_max), float(dt), link, torque,
+    times = da.map_blocks(_times_block, th, om, chain, float(t_max), float(dt), link, torque, pivot,
                           drop_axis=th.ndim - 1, dtype=np.float64, meta=np.empty((0,) * (th.ndim - 1)))
     if path is None:
         with _scheduler(scheduler) as how, reporter(progress, "sweep") as report:
@@ -298,19 +300,20 @@ def sweep(chain: Chain, theta0: npt.ArrayLike, omega0: Optional[npt.ArrayLike] =
 def _map_times_block(yb: npt.NDArray[np.float64], xb: npt.NDArray[np.float64], chain: Chain,
                      vary: Tuple[str, int, str, int], th_base: npt.NDArray[np.float64],
                      om_base: npt.NDArray[np.float64], t_max: float, dt: float, link: Optional[Integer],
-                     torque: Optional[TorqueLike]) -> npt.NDArray[np.float64]:
+                     torque: Optional[TorqueLike], pivot: Optional[Pivot]) -> npt.NDArray[np.float64]:
     theta0, omega0 = _grid(yb, xb, vary, th_base, om_base)
-    return flip_times(chain, theta0, omega0, t_max=t_max, dt=dt, link=link, torque=torque)
+    return flip_times(chain, theta0, omega0, t_max=t_max, dt=dt, link=link, torque=torque, pivot=pivot)
 
 
 def _map_certified_block(yb: npt.NDArray[np.float64], xb: npt.NDArray[np.float64], chain: Chain,
                          vary: Tuple[str, int, str, int], th_base: npt.NDArray[np.float64],
                          om_base: npt.NDArray[np.float64], t_max: float, dt: float, link: Optional[Integer],
-                         torque: Optional[TorqueLike], time_tolerance: Optional[float]) -> npt.NDArray[np.float64]:
+                         torque: Optional[TorqueLike], pivot: Optional[Pivot],
+                         time_tolerance: Optional[float]) -> npt.NDArray[np.float64]:
     # A certified block's times and uncertain flags (as 0 or 1) along a last axis of 2.
     theta0, omega0 = _grid(yb, xb, vary, th_base, om_base)
     times, uncertain, _ = certified_flip_times(chain, theta0, omega0, t_max=t_max, dt=dt, link=link, torque=torque,
-                                               time_tolerance=time_tolerance)
+                                               time_tolerance=time_tolerance, pivot=pivot)
     return np.stack([times, uncertain.astype(np.float64)], axis=-1)
 
 
@@ -368,7 +371,7 @@ def sweep_flip_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_max: floa
                    torque: Optional[TorqueLike] = None, certify: bool = False,
                    time_tolerance: Optional[float] = None, chunks: Union[None, Integer, Tuple[Integer, Integer]] = None,
                    scheduler: Scheduler = None, zarr: Optional[PathLike] = None,
-                   progress: Progress = None) -> FlipMap:
+                   progress: Progress = None, *, pivot: Optional[Pivot] = None) -> FlipMap:
     """:func:`multipendulum.flip_map` on Dask, for grids too large for one process.
 
     Same arguments and the same result (bit for bit) as ``flip_map``, a certified one too
@@ -390,15 +393,16 @@ def sweep_flip_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_max: floa
     _check_progress(progress)
     x, y, th_base, om_base, vary, path = _map_grid(chain, x, y, base_theta, base_omega, vary, zarr)
     n = chain.n
-    threshold = flip_threshold(chain, link, torque)
+    threshold = flip_threshold(chain, link, torque, pivot)
     # The arguments checked on no states (and a certified map's tolerance as the core takes it).
     certified = check_certify(certify, time_tolerance)
     if certified:
         tolerance: Optional[float] = certified_flip_times(chain, np.zeros((0, n)), t_max=t_max, dt=dt, link=link,
-                                                          torque=torque, time_tolerance=time_tolerance)[2]
+                                                          torque=torque, time_tolerance=time_tolerance,
+                                                          pivot=pivot)[2]
     else:
         tolerance = None
-        flip_times(chain, np.zeros((0, n)), t_max=t_max, dt=dt, link=link, torque=torque)
+        flip_times(chain, np.zeros((0, n)), t_max=t_max, dt=dt, link=link, torque=torque, pivot=pivot)
     rows, cols = _chunk_shape(chunks, y.size, x.size)
     rows, cols = min(rows, y.size), min(cols, x.size)
     _check_chunks(rows, cols, n, -(-y.size // rows) * -(-x.size // cols))
@@ -410,7 +414,7 @@ def sweep_flip_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_max: floa
     Y = da.from_array(y, chunks=rows)
     X = da.from_array(x, chunks=cols)
     block: Dict[str, Any] = dict(chain=chain, vary=vary, th_base=th_base, om_base=om_base, t_max=float(t_max), dt=float(dt),
-                 link=link, torque=torque)
+                 link=link, torque=torque, pivot=pivot)
     energy = functools.partial(_map_allowed_block, chain=chain, vary=vary, th_base=th_base, om_base=om_base,
                                threshold=threshold)
     arrays = _map_arrays(da, Y, X, "times", functools.partial(_map_times_block, **block),
@@ -471,15 +475,15 @@ def open_flip_map(path: PathLike) -> FlipMap:
 def _volume_block(zb: npt.NDArray[np.float64], yb: npt.NDArray[np.float64], xb: npt.NDArray[np.float64],
                   chain: Chain, vary: Tuple[str, int, str, int, str, int], th_base: npt.NDArray[np.float64],
                   om_base: npt.NDArray[np.float64], t_max: float, dt: float, link: Optional[Integer],
-                  torque: Optional[TorqueLike], certify: bool, time_tolerance: Optional[float],
+                  torque: Optional[TorqueLike], pivot: Optional[Pivot], certify: bool, time_tolerance: Optional[float],
                   threshold: float) -> npt.NDArray[np.float64]:
     # A block's times, energy flags and (certified) uncertain flags, as floats along a last axis of 3.
     theta0, omega0 = _grid_of((zb, yb, xb), vary[4:] + vary[2:4] + vary[:2], th_base, om_base)
     if certify:
         times, uncertain, _ = certified_flip_times(chain, theta0, omega0, t_max=t_max, dt=dt, link=link,
-                                                   torque=torque, time_tolerance=time_tolerance)
+                                                   torque=torque, time_tolerance=time_tolerance, pivot=pivot)
     else:
-        times = flip_times(chain, theta0, omega0, t_max=t_max, dt=dt, link=link, torque=torque)
+        times = flip_times(chain, theta0, omega0, t_max=t_max, dt=dt, link=link, torque=torque, pivot=pivot)
         uncertain = np.zeros(times.shape, dtype=bool)
     allowed = np.asarray(chain.energy(theta0, omega0) >= threshold)
     return np.stack([times, allowed.astype(np.float64), uncertain.astype(np.float64)], axis=-1)
@@ -492,7 +496,7 @@ def sweep_flip_volume(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, z: npt.A
                       time_tolerance: Optional[float] = None,
                       chunks: Union[None, Integer, Tuple[Integer, Integer, Integer]] = None,
                       scheduler: Scheduler = None, zarr: Optional[PathLike] = None,
-                      progress: Progress = None) -> FlipVolume:
+                      progress: Progress = None, *, pivot: Optional[Pivot] = None) -> FlipVolume:
     """:func:`multipendulum.flip_volume` on Dask, for 3-D grids too large for one process.
 
     Same arguments and the same result, bit for bit, as ``flip_volume``; in addition ``chunks``
@@ -519,14 +523,15 @@ def sweep_flip_volume(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, z: npt.A
         raise InputError(f"base_theta and base_omega must have shape ({n},)")
     vary3 = cast("Tuple[str, int, str, int, str, int]", _check_varied(vary, n, 3))
     path = _check_zarr_path(zarr)
-    threshold = flip_threshold(chain, link, torque)
+    threshold = flip_threshold(chain, link, torque, pivot)
     certified = check_certify(certify, time_tolerance)
     if certified:
         tolerance: Optional[float] = certified_flip_times(chain, np.zeros((0, n)), t_max=t_max, dt=dt, link=link,
-                                                          torque=torque, time_tolerance=time_tolerance)[2]
+                                                          torque=torque, time_tolerance=time_tolerance,
+                                                          pivot=pivot)[2]
     else:
         tolerance = None
-        flip_times(chain, np.zeros((0, n)), t_max=t_max, dt=dt, link=link, torque=torque)
+        flip_times(chain, np.zeros((0, n)), t_max=t_max, dt=dt, link=link, torque=torque, pivot=pivot)
     kz: int
     if chunks is None:
         plane = ys.size * xs.size
@@ -552,7 +557,8 @@ def sweep_flip_volume(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, z: npt.A
                            "pass zarr=PATH to write it chunk by chunk instead")
     Z, Y, X = da.from_array(zs, chunks=kz), da.from_array(ys, chunks=ky), da.from_array(xs, chunks=kx)
     kernel = functools.partial(_volume_block, chain=chain, vary=vary3, th_base=th_base, om_base=om_base,
-                               t_max=float(t_max), dt=float(dt), link=link, torque=torque, certify=certified,
+                               t_max=float(t_max), dt=float(dt), link=link, torque=torque, pivot=pivot,
+                               certify=certified,
                                time_tolerance=time_tolerance, threshold=threshold)
     both = da.blockwise(kernel, "kijl", Z, "k", Y, "i", X, "j", new_axes={"l": 3}, dtype=np.float64,
                         meta=np.empty((0, 0, 0, 0)))

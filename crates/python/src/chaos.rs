@@ -157,9 +157,10 @@ fn lyapunov<'py>(
     Ok((vec_out(py, out.exponents), vec_out(py, out.times), vec_out(py, out.history)))
 }
 
-/// First-flip times of the rows of flat `theta0`/`omega0` (+inf: never), in parallel.
+/// First-flip times of the rows of flat `theta0`/`omega0` (+inf: never), in parallel. A pivot
+/// function's own exception is re-raised as it was kept.
 #[pyfunction]
-#[pyo3(signature = (chain, theta0, omega0, t_max, *, dt, link=None, torque=None, progress=None))]
+#[pyo3(signature = (chain, theta0, omega0, t_max, *, dt, link=None, torque=None, pivot=None, progress=None))]
 #[allow(clippy::too_many_arguments)]
 fn first_flips<'py>(
     py: Python<'py>,
@@ -170,16 +171,19 @@ fn first_flips<'py>(
     dt: f64,
     link: Option<usize>,
     torque: Option<PyRef<'py, PyTorque>>,
+    pivot: Option<(PyRef<'py, PyAxis>, PyRef<'py, PyAxis>)>,
     progress: Option<Py<PyAny>>,
 ) -> PyResult<Bound<'py, PyArray1<f64>>> {
     let c = &chain.inner;
     let torque = builtin_only(py, c.n(), torque.as_deref(), "flip maps")?;
+    let errors: Errors = Default::default();
+    let pivot = crate::base::pivot(py, pivot, &errors)?;
     let (theta0, omega0) = (slice("theta0", &theta0)?, slice("omega0", &omega0)?);
     let watch = Watch::units((theta0.len() / c.n().max(1)) as u64);
     let out = interruptible(py, &watch, progress.as_ref(), false, || {
-        core::chaos::first_flips(c, theta0, omega0, t_max, dt, link, &torque, &watch)
+        core::chaos::first_flips(c, theta0, omega0, t_max, dt, link, &torque, pivot.as_ref(), &watch)
     })?
-    .map_err(|e| to_py(py, e))?;
+    .map_err(|e| take(&errors).unwrap_or_else(|| to_py(py, e)))?;
     Ok(vec_out(py, out))
 }
 
@@ -187,7 +191,7 @@ fn first_flips<'py>(
 /// decision or time moves when the step halves; `core::chaos::certified_flips`) and the time
 /// tolerance used.
 #[pyfunction]
-#[pyo3(signature = (chain, theta0, omega0, t_max, *, dt, link=None, torque=None, tolerance=None, progress=None))]
+#[pyo3(signature = (chain, theta0, omega0, t_max, *, dt, link=None, torque=None, pivot=None, tolerance=None, progress=None))]
 #[allow(clippy::too_many_arguments)]
 fn certified_flips<'py>(
     py: Python<'py>,
@@ -198,17 +202,20 @@ fn certified_flips<'py>(
     dt: f64,
     link: Option<usize>,
     torque: Option<PyRef<'py, PyTorque>>,
+    pivot: Option<(PyRef<'py, PyAxis>, PyRef<'py, PyAxis>)>,
     tolerance: Option<f64>,
     progress: Option<Py<PyAny>>,
 ) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<bool>>, f64)> {
     let c = &chain.inner;
     let torque = builtin_only(py, c.n(), torque.as_deref(), "flip maps")?;
+    let errors: Errors = Default::default();
+    let pivot = crate::base::pivot(py, pivot, &errors)?;
     let (theta0, omega0) = (slice("theta0", &theta0)?, slice("omega0", &omega0)?);
     let watch = Watch::units(2 * (theta0.len() / c.n().max(1)) as u64);
     let out = interruptible(py, &watch, progress.as_ref(), false, || {
-        core::chaos::certified_flips(c, theta0, omega0, t_max, dt, link, &torque, tolerance, &watch)
+        core::chaos::certified_flips(c, theta0, omega0, t_max, dt, link, &torque, pivot.as_ref(), tolerance, &watch)
     })?
-    .map_err(|e| to_py(py, e))?;
+    .map_err(|e| take(&errors).unwrap_or_else(|| to_py(py, e)))?;
     Ok((vec_out(py, out.times), PyArray1::from_vec(py, out.uncertain), out.tolerance))
 }
 

@@ -887,6 +887,7 @@ pub unsafe extern "C" fn mp_first_flips(
             dt,
             link,
             &Builtin::None,
+            None,
             &multipendulum_core::watch::Watch::new(),
         )
     };
@@ -1282,7 +1283,7 @@ mod tests {
             assert_eq!(call(-1, 10.0, &mut out), DONE, "{}", message());
             let chain = Chain::new(&lengths, &masses, None, None, 9.81).unwrap();
             let core = multipendulum_core::chaos::first_flips(
-                &chain, &theta, &omega, 10.0, 0.01, None, &Builtin::None, &multipendulum_core::watch::Watch::new(),
+                &chain, &theta, &omega, 10.0, 0.01, None, &Builtin::None, None, &multipendulum_core::watch::Watch::new(),
             )
             .unwrap();
             assert_eq!(out.to_vec(), core);

@@ -617,7 +617,7 @@ mod tests {
                 }
                 let steps = 400;
                 let fast = first_flips_double(&chain, &th, &om, steps, 0.01, link, Path::best(), &go()).unwrap();
-                let slow = first_flips_scalar(&chain, &th, &om, 4.0, 0.01, link, &Builtin::None, &go()).unwrap();
+                let slow = first_flips_scalar(&chain, &th, &om, 4.0, 0.01, link, &Builtin::None, None, &go()).unwrap();
                 agree(&fast, &slow, 2.0, 50, "the double pendulum");
                 // The rows starting beyond pi (the grid's edges) flip at 0 on both paths.
                 assert_eq!(fast[0], 0.0);
@@ -668,7 +668,7 @@ mod tests {
                 for link in [None, Some(0), Some(n - 1)] {
                     let (th, om) = released(n, 31);
                     let fast = first_flips_chain(&chain, &th, &om, 300, 0.01, link, None, Path::best(), &go()).unwrap();
-                    let slow = first_flips_scalar(&chain, &th, &om, 3.0, 0.01, link, &Builtin::None, &go()).unwrap();
+                    let slow = first_flips_scalar(&chain, &th, &om, 3.0, 0.01, link, &Builtin::None, None, &go()).unwrap();
                     agree(&fast, &slow, 1.5, 30, &format!("N = {n}"));
                     assert_eq!((fast[0], slow[0]), (0.0, 0.0)); // starting beyond pi
                     assert!(fast.iter().any(|t| t.is_infinite()) || n == 1 || link.is_some());
@@ -705,7 +705,7 @@ mod tests {
             for chain in chains_of(n) {
                 let (th, om) = released(n, 23);
                 let fast = first_flips_chain(&chain, &th, &om, 300, 0.01, None, Some(&timed), Path::best(), &go()).unwrap();
-                let slow = first_flips_scalar(&chain, &th, &om, 3.0, 0.01, None, &drive, &go()).unwrap();
+                let slow = first_flips_scalar(&chain, &th, &om, 3.0, 0.01, None, &drive, None, &go()).unwrap();
                 let undriven = first_flips_chain(&chain, &th, &om, 300, 0.01, None, None, Path::best(), &go()).unwrap();
                 assert!(fast.iter().zip(&undriven).filter(|(a, b)| a != b).count() > 100, "the drive changes the flips");
                 agree(&fast, &slow, 1.0, 30, &format!("N = {n}, driven"));

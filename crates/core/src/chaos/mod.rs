@@ -5,7 +5,7 @@ pub mod flipkernel;
 pub mod indicator_lanes;
 pub mod indicators;
 
-use crate::dynamics::base::Drive;
+use crate::dynamics::base::{Drive, Pivot};
 use crate::dynamics::general::{Load, TANGENT_SCRATCH};
 use crate::dynamics::system::{singular, ChainSystem, Form, OdeSystem, NON_FINITE};
 use crate::dynamics::torque::{Builtin, Timed, TorqueSource};
@@ -279,8 +279,9 @@ pub fn flip_energy_threshold(chain: &Chain, link: Option<usize>) -> Result<f64> 
 ///
 /// Undriven ideal chains go through the SIMD kernels of [`flipkernel`] (the same steps, with
 /// their own `sin`/`cos`, so they agree with the per-trajectory path to round-off): the double
-/// pendulum's closed form, any other N in lanes. Everything else, or
-/// `MULTIPENDULUM_FLIP_KERNEL=scalar`, goes through [`first_flips_scalar`].
+/// pendulum's closed form, any other N in lanes. A chain on a moving `pivot` (a pivot held
+/// anywhere is the fixed one), or `MULTIPENDULUM_FLIP_KERNEL=scalar`, goes through
+/// [`first_flips_scalar`].
 /// `watch` counts trajectories done and stops the work between chunks of steps.
 #[allow(clippy::too_many_arguments)]
 pub fn first_flips(
@@ -291,9 +292,15 @@ pub fn first_flips(
     dt: f64,
     link: Option<usize>,
     torque: &Builtin,
+    pivot: Option<&Pivot>,
     watch: &Watch,
 ) -> Result<Vec<f64>> {
     let steps = check_flips(chain, theta0, omega0, t_max, dt, link)?;
+    Drive { pivot: pivot.cloned(), force: None }.check(chain)?;
+    // A pivot held anywhere moves nothing: the angles' motion is the fixed pivot's.
+    if pivot.is_some_and(|p| !p.is_fixed()) {
+        return first_flips_scalar(chain, theta0, omega0, t_max, dt, link, torque, pivot, watch);
+    }
     // The kernels: the ideal undriven double pendulum's own, any other chain in lanes (damping,
     // friction, a cart and a built-in torque included).
     if let Some(path) = flipkernel::requested()? {
@@ -303,7 +310,7 @@ pub fn first_flips(
             _ => flipkernel::first_flips_chain(chain, theta0, omega0, steps, dt, link, drive.as_ref(), path, watch),
         };
     }
-    first_flips_scalar(chain, theta0, omega0, t_max, dt, link, torque, watch)
+    first_flips_scalar(chain, theta0, omega0, t_max, dt, link, torque, pivot, watch)
 }
 
 /// A certified flip computation: [`first_flips`] at `dt` (the times reported) and again at
@@ -320,6 +327,7 @@ pub fn certified_flips(
     dt: f64,
     link: Option<usize>,
     torque: &Builtin,
+    pivot: Option<&Pivot>,
     tolerance: Option<f64>,
     watch: &Watch,
 ) -> Result<Certified> {
@@ -327,8 +335,8 @@ pub fn certified_flips(
     if !(tolerance.is_finite() && tolerance >= 0.0) {
         return Err(Error::input(format!("time_tolerance must be >= 0 and finite, got {tolerance}")));
     }
-    let coarse = first_flips(chain, theta0, omega0, t_max, dt, link, torque, watch)?;
-    let fine = first_flips(chain, theta0, omega0, t_max, 0.5 * dt, link, torque, watch)?;
+    let coarse = first_flips(chain, theta0, omega0, t_max, dt, link, torque, pivot, watch)?;
+    let fine = first_flips(chain, theta0, omega0, t_max, 0.5 * dt, link, torque, pivot, watch)?;
     let uncertain = coarse
         .iter()
         .zip(&fine)
@@ -406,7 +414,8 @@ pub(crate) fn flip_time(t: f64, dt: f64, start: (f64, f64), end: (f64, f64)) -> 
 }
 
 /// [`first_flips`] one trajectory at a time with the generic [`Rk4`] over a
-/// [`ChainSystem`]: any N, any built-in torque. Kept callable for comparisons with the kernel.
+/// [`ChainSystem`]: any N, any built-in torque, a moving pivot (a pivot function is called from
+/// the workers). Kept callable for comparisons with the kernel.
 #[allow(clippy::too_many_arguments)]
 pub fn first_flips_scalar(
     chain: &Chain,
@@ -416,17 +425,20 @@ pub fn first_flips_scalar(
     dt: f64,
     link: Option<usize>,
     torque: &Builtin,
+    pivot: Option<&Pivot>,
     watch: &Watch,
 ) -> Result<Vec<f64>> {
     let n = chain.n();
     let steps = check_flips(chain, theta0, omega0, t_max, dt, link)?;
     let links: Vec<usize> = link.map_or_else(|| (0..n).collect(), |k| vec![k]);
+    let base = Drive { pivot: pivot.cloned(), force: None };
+    base.check(chain)?;
     theta0
         .par_chunks(n)
         .zip(omega0.par_chunks(n))
         .map_init(
             || {
-                let sys = ChainSystem::new(chain, torque.clone(), Form::Lagrangian);
+                let sys = ChainSystem::new(chain, torque.clone(), Form::Lagrangian).with_drive(base.clone()).expect("checked above");
                 let d = sys.dim();
                 (sys, Rk4::new(d))
             },
@@ -493,10 +505,10 @@ mod tests {
             om.extend([0.0; 3]);
         }
         let go = Watch::new();
-        let Certified { times, uncertain, tolerance } = certified_flips(&chain, &th, &om, 20.0, 0.02, None, &Builtin::None, None, &go).unwrap();
+        let Certified { times, uncertain, tolerance } = certified_flips(&chain, &th, &om, 20.0, 0.02, None, &Builtin::None, None, None, &go).unwrap();
         assert_eq!(tolerance, 0.02, "one step by default");
-        let coarse = first_flips(&chain, &th, &om, 20.0, 0.02, None, &Builtin::None, &go).unwrap();
-        let fine = first_flips(&chain, &th, &om, 20.0, 0.01, None, &Builtin::None, &go).unwrap();
+        let coarse = first_flips(&chain, &th, &om, 20.0, 0.02, None, &Builtin::None, None, &go).unwrap();
+        let fine = first_flips(&chain, &th, &om, 20.0, 0.01, None, &Builtin::None, None, &go).unwrap();
         assert!(times.iter().zip(&coarse).all(|(a, b)| a.to_bits() == b.to_bits()), "the times are the run at dt");
         for j in 0..40 {
             let differ = coarse[j].is_finite() != fine[j].is_finite() || (coarse[j] - fine[j]).abs() > 0.02;
@@ -505,9 +517,9 @@ mod tests {
         // Released high, over 20 s the triple pendulum's chaos moves some flips with the step, and
         // a quick first flip is resolved.
         assert!(uncertain.iter().any(|&u| u) && uncertain.iter().any(|&u| !u), "{uncertain:?}");
-        let tight = certified_flips(&chain, &th, &om, 20.0, 0.02, None, &Builtin::None, Some(0.0), &go).unwrap().uncertain;
+        let tight = certified_flips(&chain, &th, &om, 20.0, 0.02, None, &Builtin::None, None, Some(0.0), &go).unwrap().uncertain;
         assert!(tight.iter().zip(&uncertain).all(|(t, u)| *t || !*u));
-        let e = certified_flips(&chain, &th, &om, 20.0, 0.02, None, &Builtin::None, Some(f64::NAN), &go).unwrap_err();
+        let e = certified_flips(&chain, &th, &om, 20.0, 0.02, None, &Builtin::None, None, Some(f64::NAN), &go).unwrap_err();
         assert_eq!(e.to_string(), "time_tolerance must be >= 0 and finite, got NaN");
     }
 
