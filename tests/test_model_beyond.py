@@ -293,9 +293,15 @@ def test_flip_maps_of_a_shaken_chain_have_no_energy_bound_and_follow_single_runs
     # Certified and swept maps take the pivot too.
     certified = mp.flip_map(chain, x, x, t_max=4.0, dt=0.01, pivot=SHAKE, certify=True)
     np.testing.assert_array_equal(certified.times, fm.times)
+    vary3 = ("theta", 0, "theta", 1, "omega", 0)
+    volume = mp.flip_volume(chain, x, x, [0.0, 0.5], t_max=4.0, dt=0.01, vary=vary3, pivot=SHAKE)
+    np.testing.assert_array_equal(volume.slice(0).times, fm.times)
+    assert volume.threshold == -np.inf
     if importlib.util.find_spec("dask") is not None:
         np.testing.assert_array_equal(mp.sweep_flip_map(chain, x, x, t_max=4.0, dt=0.01, pivot=SHAKE, chunks=4).times, fm.times)
         np.testing.assert_array_equal(mp.sweep(chain, th, t_max=4.0, dt=0.01, pivot=SHAKE, chunks=3), fm.times)
+        swept = mp.sweep_flip_volume(chain, x, x, [0.0, 0.5], t_max=4.0, dt=0.01, vary=vary3, pivot=SHAKE, chunks=1)
+        np.testing.assert_array_equal(swept.times, volume.times)
 
 
 def test_flip_times_refuse_a_bad_pivot_and_keep_its_functions_exception():
