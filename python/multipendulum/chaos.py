@@ -51,9 +51,9 @@ def flip_times(chain: Chain, theta0: npt.ArrayLike, omega0: Optional[npt.ArrayLi
     """First time each initial state's link ``link`` (None: any link) reaches |theta| = pi,
     by rk4 at step ``dt`` and root finding within the step; ``inf`` where it never does by
     ``t_max``. ``theta0`` (..., N); ``omega0`` defaults to rest. ``pivot``: a :class:`Pivot`
-    whose motion drives the chain (each trajectory's rk4 run one at a time, in parallel; a
-    fixed pivot's chain runs in the SIMD lanes). Parallel on all cores; ``progress`` as for
-    :func:`lyapunov`, and Ctrl-C stops the work.
+    whose motion drives the chain (in the SIMD lanes as the fixed pivot's chain; an axis given
+    as a Python function runs trajectory by trajectory). Parallel on all cores; ``progress`` as
+    for :func:`lyapunov`, and Ctrl-C stops the work.
 
     >>> import multipendulum as mp
     >>> shaken = mp.Pivot(x=mp.Sinusoid(amplitude=0.1, frequency=6.0))

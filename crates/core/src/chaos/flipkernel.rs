@@ -28,6 +28,7 @@ use super::flip_time;
 use crate::trig::lanes::{sin_cos, Lane, Path, LANES};
 use crate::dynamics::{Singular, PIVOT_TOL};
 use crate::error::{Error, Result};
+use crate::dynamics::base::Pivot;
 use crate::dynamics::torque::Timed;
 use crate::integrators::lanes::{ChainLanes as Equations, Rk4Lanes};
 use crate::model::Chain;
@@ -339,7 +340,7 @@ fn run_chunk_chain(
     steps: u64,
     dt: f64,
     links: &[usize],
-    drive: Option<&Timed>,
+    (drive, pivot): (Option<&Timed>, Option<&Pivot>),
     stop: &Watch,
     out: &mut [f64],
 ) -> Result<()> {
@@ -371,7 +372,7 @@ fn run_chunk_chain(
         s.y0.copy_from_slice(&s.y);
         // Each lane at its own trajectory's time (for a drive).
         let t: Lane = std::array::from_fn(|i| s.step[i] as f64 * dt);
-        let mut sys = Equations { chain, tau: &s.tau, drive, force: &[0.0; LANES], q: &mut q };
+        let mut sys = Equations { chain, tau: &s.tau, drive, force: &[0.0; LANES], pivot, q: &mut q };
         let stepped = s.rk.step_system_at(&mut s.y, &t, dt, &s.active, &mut sys);
         let nonfinite = match stepped {
             Ok(nonfinite) => nonfinite,
@@ -419,19 +420,19 @@ fn run_chunk_chain(
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,fma")]
 #[allow(clippy::too_many_arguments)]
-unsafe fn run_chunk_chain_avx512(chain: &Chain, th: &[f64], om: &[f64], steps: u64, dt: f64, links: &[usize], drive: Option<&Timed>, stop: &Watch, out: &mut [f64]) -> Result<()> {
+unsafe fn run_chunk_chain_avx512(chain: &Chain, th: &[f64], om: &[f64], steps: u64, dt: f64, links: &[usize], drive: (Option<&Timed>, Option<&Pivot>), stop: &Watch, out: &mut [f64]) -> Result<()> {
     run_chunk_chain(chain, th, om, steps, dt, links, drive, stop, out)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 #[allow(clippy::too_many_arguments)]
-unsafe fn run_chunk_chain_avx2(chain: &Chain, th: &[f64], om: &[f64], steps: u64, dt: f64, links: &[usize], drive: Option<&Timed>, stop: &Watch, out: &mut [f64]) -> Result<()> {
+unsafe fn run_chunk_chain_avx2(chain: &Chain, th: &[f64], om: &[f64], steps: u64, dt: f64, links: &[usize], drive: (Option<&Timed>, Option<&Pivot>), stop: &Watch, out: &mut [f64]) -> Result<()> {
     run_chunk_chain(chain, th, om, steps, dt, links, drive, stop, out)
 }
 
 #[allow(clippy::too_many_arguments)]
-fn run_chunk_chain_on(path: Path, chain: &Chain, th: &[f64], om: &[f64], steps: u64, dt: f64, links: &[usize], drive: Option<&Timed>, stop: &Watch, out: &mut [f64]) -> Result<()> {
+fn run_chunk_chain_on(path: Path, chain: &Chain, th: &[f64], om: &[f64], steps: u64, dt: f64, links: &[usize], drive: (Option<&Timed>, Option<&Pivot>), stop: &Watch, out: &mut [f64]) -> Result<()> {
     assert!(path.available(), "the {} kernel needs a CPU feature this one lacks", path.name());
     match path {
         // SAFETY: the CPU has the feature (checked just above).
@@ -443,7 +444,8 @@ fn run_chunk_chain_on(path: Path, chain: &Chain, th: &[f64], om: &[f64], steps: 
     }
 }
 
-/// First-flip times of a chain of any N in lanes, undriven or under `drive` ([`Rk4Lanes`]: the recursion
+/// First-flip times of a chain of any N in lanes, undriven or under `drive`'s torques of time and
+/// pivot motion (a pivot the lanes can evaluate) ([`Rk4Lanes`]: the recursion
 /// of [`crate::dynamics::lanes`], the lanes' `sin`/`cos`, fused product-sums), with the same
 /// rules as `chaos::first_flips`, which validates the input and calls this. Agrees with the
 /// per-trajectory path to round-off; the same bits on every path and any number of threads.
@@ -455,7 +457,7 @@ pub(crate) fn first_flips_chain(
     steps: u64,
     dt: f64,
     link: Option<usize>,
-    drive: Option<&Timed>,
+    drive: (Option<&Timed>, Option<&Pivot>),
     path: Path,
     stop: &Watch,
 ) -> Result<Vec<f64>> {
@@ -667,7 +669,7 @@ mod tests {
             for chain in chains_of(n) {
                 for link in [None, Some(0), Some(n - 1)] {
                     let (th, om) = released(n, 31);
-                    let fast = first_flips_chain(&chain, &th, &om, 300, 0.01, link, None, Path::best(), &go()).unwrap();
+                    let fast = first_flips_chain(&chain, &th, &om, 300, 0.01, link, (None, None), Path::best(), &go()).unwrap();
                     let slow = first_flips_scalar(&chain, &th, &om, 3.0, 0.01, link, &Builtin::None, None, &go()).unwrap();
                     agree(&fast, &slow, 1.5, 30, &format!("N = {n}"));
                     assert_eq!((fast[0], slow[0]), (0.0, 0.0)); // starting beyond pi
@@ -682,15 +684,15 @@ mod tests {
         let n = 4;
         let (th, om) = released(n, 23);
         for chain in chains_of(n) {
-            let reference = first_flips_chain(&chain, &th, &om, 400, 0.01, None, None, Path::Portable, &go()).unwrap();
+            let reference = first_flips_chain(&chain, &th, &om, 400, 0.01, None, (None, None), Path::Portable, &go()).unwrap();
             assert!(reference.iter().any(|t| t.is_finite() && *t > 0.0) && reference.iter().any(|t| t.is_infinite()));
             for path in Path::ALL.into_iter().filter(|p| p.available()) {
-                let got = first_flips_chain(&chain, &th, &om, 400, 0.01, None, None, path, &go()).unwrap();
+                let got = first_flips_chain(&chain, &th, &om, 400, 0.01, None, (None, None), path, &go()).unwrap();
                 assert!(got.iter().zip(&reference).all(|(a, b)| a.to_bits() == b.to_bits()), "{path:?}");
             }
             // A row's time does not depend on its neighbours: each row alone, from its middle on.
             for j in [0, 7, 100, 300] {
-                let one = first_flips_chain(&chain, &th[n * j..n * (j + 1)], &om[n * j..n * (j + 1)], 400, 0.01, None, None, Path::best(), &go())
+                let one = first_flips_chain(&chain, &th[n * j..n * (j + 1)], &om[n * j..n * (j + 1)], 400, 0.01, None, (None, None), Path::best(), &go())
                     .unwrap();
                 assert_eq!(one[0].to_bits(), reference[j].to_bits(), "row {j}");
             }
@@ -704,18 +706,46 @@ mod tests {
             let timed = Timed { builtin: drive.clone(), joint: false };
             for chain in chains_of(n) {
                 let (th, om) = released(n, 23);
-                let fast = first_flips_chain(&chain, &th, &om, 300, 0.01, None, Some(&timed), Path::best(), &go()).unwrap();
+                let fast = first_flips_chain(&chain, &th, &om, 300, 0.01, None, (Some(&timed), None), Path::best(), &go()).unwrap();
                 let slow = first_flips_scalar(&chain, &th, &om, 3.0, 0.01, None, &drive, None, &go()).unwrap();
-                let undriven = first_flips_chain(&chain, &th, &om, 300, 0.01, None, None, Path::best(), &go()).unwrap();
+                let undriven = first_flips_chain(&chain, &th, &om, 300, 0.01, None, (None, None), Path::best(), &go()).unwrap();
                 assert!(fast.iter().zip(&undriven).filter(|(a, b)| a != b).count() > 100, "the drive changes the flips");
                 agree(&fast, &slow, 1.0, 30, &format!("N = {n}, driven"));
                 // Lanes are refilled at different times: a row alone is the same bits.
                 for path in Path::ALL.into_iter().filter(|p| p.available()) {
-                    let got = first_flips_chain(&chain, &th, &om, 300, 0.01, None, Some(&timed), path, &go()).unwrap();
+                    let got = first_flips_chain(&chain, &th, &om, 300, 0.01, None, (Some(&timed), None), path, &go()).unwrap();
                     assert!(got.iter().zip(&fast).all(|(a, b)| a.to_bits() == b.to_bits()), "{path:?}");
                 }
                 for j in [3, 200, 528] {
-                    let one = first_flips_chain(&chain, &th[n * j..n * (j + 1)], &om[n * j..n * (j + 1)], 300, 0.01, None, Some(&timed), Path::best(), &go()).unwrap();
+                    let one = first_flips_chain(&chain, &th[n * j..n * (j + 1)], &om[n * j..n * (j + 1)], 300, 0.01, None, (Some(&timed), None), Path::best(), &go()).unwrap();
+                    assert_eq!(one[0].to_bits(), fast[j].to_bits(), "row {j}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn a_shaken_pivot_flips_chains_in_lanes_as_on_the_scalar_path_each_row_at_its_own_time() {
+        use crate::dynamics::base::Axis;
+        // A sinusoid and a cubic table: both evaluated in the lanes.
+        let t: Vec<f64> = (0..40).map(|k| 0.1 * k as f64).collect();
+        let table = Axis::spline("y", t.clone(), t.iter().map(|t| 0.04 * (9.0 * t).cos()).collect()).unwrap();
+        let pivot = Pivot { x: Axis::sinusoid("x", 0.08, 7.0, 0.2, 0.0).unwrap(), y: table };
+        for n in [2, 3] {
+            // (A chain on a cart has no prescribed pivot motion: `first_flips` refuses it.)
+            for chain in chains_of(n).into_iter().filter(|c| c.cart().is_none()) {
+                let (th, om) = released(n, 23);
+                let fast = first_flips_chain(&chain, &th, &om, 300, 0.01, None, (None, Some(&pivot)), Path::best(), &go()).unwrap();
+                let slow = first_flips_scalar(&chain, &th, &om, 3.0, 0.01, None, &Builtin::None, Some(&pivot), &go()).unwrap();
+                let still = first_flips_chain(&chain, &th, &om, 300, 0.01, None, (None, None), Path::best(), &go()).unwrap();
+                assert!(fast.iter().zip(&still).filter(|(a, b)| a != b).count() > 100, "the pivot changes the flips");
+                agree(&fast, &slow, 1.0, 30, &format!("N = {n}, shaken"));
+                for path in Path::ALL.into_iter().filter(|p| p.available()) {
+                    let got = first_flips_chain(&chain, &th, &om, 300, 0.01, None, (None, Some(&pivot)), path, &go()).unwrap();
+                    assert!(got.iter().zip(&fast).all(|(a, b)| a.to_bits() == b.to_bits()), "{path:?}");
+                }
+                for j in [3, 200, 528] {
+                    let one = first_flips_chain(&chain, &th[n * j..n * (j + 1)], &om[n * j..n * (j + 1)], 300, 0.01, None, (None, Some(&pivot)), Path::best(), &go()).unwrap();
                     assert_eq!(one[0].to_bits(), fast[j].to_bits(), "row {j}");
                 }
             }
@@ -725,7 +755,7 @@ mod tests {
     #[test]
     fn a_chain_that_blows_up_is_an_integration_error_with_its_time() {
         let chain = &chains_of(3)[0];
-        let e = first_flips_chain(chain, &[0.1; 6], &[0.0, 0.0, 0.0, 1e200, 0.0, 0.0], 100, 0.01, None, None, Path::best(), &go())
+        let e = first_flips_chain(chain, &[0.1; 6], &[0.0, 0.0, 0.0, 1e200, 0.0, 0.0], 100, 0.01, None, (None, None), Path::best(), &go())
             .unwrap_err();
         assert!(matches!(e, Error::Integration { .. }), "{e}");
     }

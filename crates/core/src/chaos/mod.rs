@@ -279,9 +279,9 @@ pub fn flip_energy_threshold(chain: &Chain, link: Option<usize>) -> Result<f64> 
 ///
 /// Undriven ideal chains go through the SIMD kernels of [`flipkernel`] (the same steps, with
 /// their own `sin`/`cos`, so they agree with the per-trajectory path to round-off): the double
-/// pendulum's closed form, any other N in lanes. A chain on a moving `pivot` (a pivot held
-/// anywhere is the fixed one), or `MULTIPENDULUM_FLIP_KERNEL=scalar`, goes through
-/// [`first_flips_scalar`].
+/// pendulum's closed form, any other N (and a chain on a moving `pivot`; a pivot held anywhere
+/// is the fixed one) in lanes. A pivot given as a function, or `MULTIPENDULUM_FLIP_KERNEL=scalar`,
+/// goes through [`first_flips_scalar`].
 /// `watch` counts trajectories done and stops the work between chunks of steps.
 #[allow(clippy::too_many_arguments)]
 pub fn first_flips(
@@ -298,16 +298,16 @@ pub fn first_flips(
     let steps = check_flips(chain, theta0, omega0, t_max, dt, link)?;
     Drive { pivot: pivot.cloned(), force: None }.check(chain)?;
     // A pivot held anywhere moves nothing: the angles' motion is the fixed pivot's.
-    if pivot.is_some_and(|p| !p.is_fixed()) {
-        return first_flips_scalar(chain, theta0, omega0, t_max, dt, link, torque, pivot, watch);
-    }
+    let pivot = pivot.filter(|p| !p.is_fixed());
     // The kernels: the ideal undriven double pendulum's own, any other chain in lanes (damping,
-    // friction, a cart and a built-in torque included).
-    if let Some(path) = flipkernel::requested()? {
+    // friction, a cart, a built-in torque and a pivot motion of time included).
+    if let Some(path) = flipkernel::requested()?.filter(|_| pivot.is_none_or(Pivot::in_lanes)) {
         let drive = Timed::generalized(torque);
         return match (chain.n(), chain.is_ideal()) {
-            (2, true) if drive.is_none() && !flipkernel::generic() => flipkernel::first_flips_double(chain, theta0, omega0, steps, dt, link, path, watch),
-            _ => flipkernel::first_flips_chain(chain, theta0, omega0, steps, dt, link, drive.as_ref(), path, watch),
+            (2, true) if drive.is_none() && pivot.is_none() && !flipkernel::generic() => {
+                flipkernel::first_flips_double(chain, theta0, omega0, steps, dt, link, path, watch)
+            }
+            _ => flipkernel::first_flips_chain(chain, theta0, omega0, steps, dt, link, (drive.as_ref(), pivot), path, watch),
         };
     }
     first_flips_scalar(chain, theta0, omega0, t_max, dt, link, torque, pivot, watch)

@@ -7,6 +7,7 @@ use std::sync::Arc;
 
 use super::torque::{Builtin, Interp, TorqueSource};
 use crate::error::{Error, Result};
+use crate::trig::lanes::{sin_cos, Lane, LANES};
 
 /// A prescribed coordinate of the pivot as a function of time, with two derivatives.
 #[derive(Clone)]
@@ -113,6 +114,26 @@ impl Axis {
     }
 }
 
+impl Axis {
+    /// The acceleration at each lane's time `at`, for the SIMD lanes: a sinusoid's through the
+    /// lanes' own `sin` (their round-off, as their dynamics'), a table's as [`Axis::eval`];
+    /// `None` for a function, which the lanes cannot call.
+    #[inline(always)]
+    pub fn acc_lanes(&self, at: &Lane) -> Option<Lane> {
+        Some(match self {
+            Axis::Fixed(_) => [0.0; LANES],
+            Axis::Sinusoid { amplitude, frequency, phase, .. } => {
+                let arg: Lane = std::array::from_fn(|i| frequency * at[i] + phase);
+                let (sin, _) = sin_cos(&arg);
+                let k = -amplitude * frequency * frequency;
+                sin.map(|s| k * s)
+            }
+            Axis::Spline { .. } => std::array::from_fn(|i| self.eval(at[i]).map_or(f64::NAN, |m| m[2])),
+            Axis::Function(_) => return None,
+        })
+    }
+}
+
 /// The pivot's prescribed motion `(x_p(t), y_p(t))`.
 #[derive(Debug, Clone)]
 pub struct Pivot {
@@ -142,6 +163,11 @@ impl Pivot {
     /// Whether the pivot stays where it is.
     pub fn is_fixed(&self) -> bool {
         self.x.is_fixed() && self.y.is_fixed()
+    }
+
+    /// Whether the SIMD lanes can evaluate it (no axis is a function).
+    pub fn in_lanes(&self) -> bool {
+        ![&self.x, &self.y].iter().any(|a| matches!(a, Axis::Function(_)))
     }
 
     #[inline]

@@ -7,9 +7,10 @@
 //! double pendulum (`chaos::flipkernel`), ensembles and chaos indicators; each compiles it inside
 //! its `#[target_feature]` wrappers.
 use crate::dynamics::lanes::{accelerations, accelerations_on, add_losses, CartLanes, LaneScratch, LaneSingular};
+use crate::dynamics::base::Pivot;
 use crate::dynamics::torque::Timed;
 use crate::model::Chain;
-use crate::trig::lanes::{Lane, LANES};
+use crate::trig::lanes::{sin_cos, Lane, LANES};
 
 /// A system of lanes built on a chain's accelerations. A trait rather than a closure: its
 /// `#[inline(always)]` method is compiled inside the caller's `#[target_feature]` wrapper, where
@@ -35,6 +36,9 @@ pub struct ChainLanes<'a> {
     pub drive: Option<&'a Timed>,
     /// The force on the cart (unused without one).
     pub force: &'a Lane,
+    /// A moving pivot (one the lanes can evaluate: [`Pivot::in_lanes`]), its acceleration at
+    /// each stage's times: the generalized forces `-h_a (a_x cos theta_a + a_y sin theta_a)`.
+    pub pivot: Option<&'a Pivot>,
     /// The generalized forces with the losses (`N` lanes of scratch).
     pub q: &'a mut [Lane],
 }
@@ -48,7 +52,7 @@ impl LaneSystem for ChainLanes<'_> {
         let (cart, lossy) = (chain.cart(), chain.lossy_joints());
         let (head, tail) = dy.split_at_mut(n);
         head.copy_from_slice(omega);
-        if self.drive.is_none() && !lossy && cart.is_none() {
+        if self.drive.is_none() && !lossy && cart.is_none() && self.pivot.is_none() {
             return accelerations(chain, theta, omega, self.tau, tail, scratch, active);
         }
         let mut drive_power = None;
@@ -64,6 +68,19 @@ impl LaneSystem for ChainLanes<'_> {
                 drive_power = Some(p);
             }
             None => self.q.copy_from_slice(self.tau),
+        }
+        if let Some(pivot) = self.pivot {
+            // The pivot's acceleration as a change of gravity, `(-a_x, -a_y)` on each link's
+            // centre of mass (its work is not tracked here: the flip times need none).
+            let nan = [f64::NAN; LANES];
+            let (ax, ay) = (pivot.x.acc_lanes(at).unwrap_or(nan), pivot.y.acc_lanes(at).unwrap_or(nan));
+            for (a, q) in self.q.iter_mut().enumerate() {
+                let (sin, cos) = sin_cos(&theta[a]);
+                let h = chain.h[a];
+                for i in 0..LANES {
+                    q[i] -= h * ax[i].mul_add(cos[i], ay[i] * sin[i]);
+                }
+            }
         }
         let mut power = [0.0; LANES];
         if lossy {
@@ -154,7 +171,7 @@ impl Rk4Lanes {
     ) -> std::result::Result<[bool; LANES], (usize, LaneSingular)> {
         let mut q = std::mem::take(&mut self.q);
         // The chain's equations do not depend on time: the steps' times are immaterial.
-        let out = self.step_system(y, 0.0, dt, active, &mut ChainLanes { chain, tau, drive: None, force, q: &mut q });
+        let out = self.step_system(y, 0.0, dt, active, &mut ChainLanes { chain, tau, drive: None, force, pivot: None, q: &mut q });
         self.q = q;
         out
     }
