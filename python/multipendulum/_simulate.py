@@ -203,6 +203,7 @@ class Solution:
     _joint: bool
     _rtol: float
     _initial: Tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]
+    _cart0: Tuple[float, float]
 
     def __init__(self, chain: Chain, method: str, form: str, data: Dict[str, Any], batch_shape: Tuple[int, ...],
                  stats: Stats, n_events: int = 0) -> None:
@@ -313,7 +314,7 @@ class Solution:
             span = self.TRUST_STEPS * dt
             note = f", over the first {span:.3g} s (a stiff chain: steps of {dt:.2g} s)"
         try:
-            cart = {} if self.cart_x is None or self.cart_v is None else dict(cart_x0=self.cart_x[0], cart_v0=self.cart_v[0], cart_force=cart_force)
+            cart = {} if self.chain.cart is None else dict(cart_x0=self._cart0[0], cart_v0=self._cart0[1], cart_force=cart_force)
             lam = lyapunov(self.chain, theta0, omega0, span, dt=dt, k=1, torque=self._torque,
                            pivot=pivot, **cart).largest
         except (InputError, IntegrationError) as exc:
@@ -568,6 +569,8 @@ def _run(chain: Chain, th0: npt.NDArray[Any], om0: npt.NDArray[Any], run: Dict[s
         if data["canonical"].size:
             sol.canonical_sensitivities = _split_sensitivities(data["canonical"], sensitivities, sizes, states, shape)
     sol._initial = (np.asarray(th0, dtype=np.float64), np.asarray(om0, dtype=np.float64))
+    x0, v0 = run.get("cart0", (0.0, 0.0))
+    sol._cart0 = (float(x0), float(v0))
     if spec is not None and spec[0] != "callable":
         sol._torque = torque_object(spec, chain.n)
     else:
