@@ -314,9 +314,8 @@ class Solution:
             span = self.TRUST_STEPS * dt
             note = f", over the first {span:.3g} s (a stiff chain: steps of {dt:.2g} s)"
         try:
-            cart = {} if self.chain.cart is None else dict(cart_x0=self._cart0[0], cart_v0=self._cart0[1], cart_force=cart_force)
-            lam = lyapunov(self.chain, theta0, omega0, span, dt=dt, k=1, torque=self._torque,
-                           pivot=pivot, **cart).largest
+            lam = lyapunov(self.chain, theta0, omega0, span, dt=dt, k=1, torque=self._torque, pivot=pivot,
+                           cart_x0=self._cart0[0], cart_v0=self._cart0[1], cart_force=cart_force).largest
         except (InputError, IntegrationError) as exc:
             return None, f"the Lyapunov run for the estimate failed ({exc})"
         eps = self._rtol if self.method == "dop853" else max(float(self.stats.energy_error), 1e-16)
