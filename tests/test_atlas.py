@@ -252,6 +252,22 @@ def test_atlas_gali_through_dask_into_zarr(tmp_path, capsys):
     assert tuple(m.values.chunks)[0] == 4 and (tmp_path / "g.png").exists()
 
 
+def test_atlas_maps_a_scenarios_shaken_pivot(tmp_path, capsys):
+    pytest.importorskip("dask.array")
+    pytest.importorskip("zarr")
+    path = tmp_path / "shaken.toml"
+    path.write_text(SCENARIO + '[pivot]\ny = { kind = "sinusoid", amplitude = 0.04, frequency = 30.0 }\n')
+    args = ["atlas", str(path), "-o", str(tmp_path / "m.png"), "--size", "6", "--t-end", "2",
+            "--zarr", str(tmp_path / "m.zarr"), "--dask", "threads", "--dpi", "40", "-q"]
+    assert main(args) == 0
+    m = open_indicator_map(tmp_path / "m.zarr")
+    shaken = mp.Pivot(y=mp.Sinusoid(amplitude=0.04, frequency=30.0))
+    ref = mp.indicator_map(DOUBLE, _cells(6), _cells(6), t_end=2.0, base_theta=np.radians([120.0, -10.0]), pivot=shaken)
+    np.testing.assert_array_equal(m.values[:], ref.values)
+    still = mp.indicator_map(DOUBLE, _cells(6), _cells(6), t_end=2.0, base_theta=np.radians([120.0, -10.0]))
+    assert (ref.values != still.values).any()  # the pivot was applied
+
+
 def test_atlas_flip_is_the_fractal_command(tmp_path, capsys):
     scenario = _scenario(tmp_path)
     common = ["--size", "12", "--dpi", "50", "--link", "2", "--x", "theta2", "--y", "omega2"]

@@ -12,6 +12,7 @@ import numpy as np
 import numpy.typing as npt
 
 import multipendulum._core as _core
+from ._base import Pivot, core_pivot, normalise_pivot
 from ._chain import Chain, as_state, check_chain
 from ._convert import Integer, as_float, as_floats
 from ._progress import Progress, reporter
@@ -39,9 +40,10 @@ class IndicatorResult:
 def indicator(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: float, indicator: str = "megno",
               k: Optional[Integer] = None, dt: float = 0.005, torque: Optional[TorqueLike] = None,
               deviations: Optional[npt.ArrayLike] = None, record_every: Integer = 1,
-              progress: Progress = None) -> Union[IndicatorResult, npt.NDArray[np.float64]]:
+              progress: Progress = None, *, pivot: Optional[Pivot] = None) -> Union[IndicatorResult, npt.NDArray[np.float64]]:
     """A chaos indicator of the chain from ``(theta0, omega0)``, integrated with rk4 at step ``dt``
-    together with the variational equations (damping and friction included; not on a cart).
+    together with the variational equations (damping, friction and a moving ``pivot``, a
+    :class:`Pivot`, included; not on a cart).
 
     ``indicator``: ``"megno"`` (time-averaged MEGNO ``<Y>``: -> 2 on regular orbits, ~ lambda t / 2
     on chaotic ones), ``"fli"`` (fast Lyapunov indicator ``sup ln |d|``), ``"ofli"`` (its
@@ -63,7 +65,7 @@ def indicator(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end:
     >>> bool(chaotic.value > 30)
     True
     """
-    th0, om0, args = _arguments(chain, theta0, omega0, t_end, indicator, k, dt, torque, deviations)
+    th0, om0, args = _arguments(chain, theta0, omega0, t_end, indicator, k, dt, torque, deviations, pivot)
     if isinstance(record_every, bool) or not isinstance(record_every, (int, np.integer)) or not 1 <= record_every < 2**64:
         raise InputError(f"record_every must be a positive integer (steps), got {record_every!r}")
     with reporter(progress, indicator) as report:
@@ -79,8 +81,8 @@ def indicator(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end:
 def certified_indicator(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: float,
                         indicator: str = "megno", k: Optional[Integer] = None, dt: float = 0.005,
                         torque: Optional[TorqueLike] = None, deviations: Optional[npt.ArrayLike] = None,
-                        threshold: Optional[float] = None, progress: Progress = None
-                        ) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.bool_], float]:
+                        threshold: Optional[float] = None, progress: Progress = None, *,
+                        pivot: Optional[Pivot] = None) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.bool_], float]:
     """:func:`indicator` of a batch at ``dt`` and again at ``dt / 2``: ``(values, uncertain,
     threshold)``, the values at ``dt`` (shape ``theta0.shape[:-1]``) and, per state, whether it is uncertain: the two runs fall
     on different sides of ``threshold``, so that whether the state looks chaotic depends on the
@@ -94,7 +96,7 @@ def certified_indicator(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLi
     >>> bool(values[0] < threshold < values[1]), uncertain.tolist(), threshold
     (True, [False, False], 4.0)
     """
-    th0, om0, args = _arguments(chain, theta0, omega0, t_end, indicator, k, dt, torque, deviations)
+    th0, om0, args = _arguments(chain, theta0, omega0, t_end, indicator, k, dt, torque, deviations, pivot)
     if th0.ndim < 2:
         raise InputError(f"a certified indicator is of a batch: theta0 and omega0 of shape (..., {chain.n}), "
                          f"got {th0.shape}")
@@ -107,8 +109,8 @@ def certified_indicator(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLi
 
 
 def _arguments(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: float, indicator: str,
-               k: Optional[Integer], dt: float, torque: Optional[TorqueLike], deviations: Optional[npt.ArrayLike]
-               ) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], Dict[str, Any]]:
+               k: Optional[Integer], dt: float, torque: Optional[TorqueLike], deviations: Optional[npt.ArrayLike],
+               pivot: Optional[Pivot] = None) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], Dict[str, Any]]:
     """The states and the core's keyword arguments of an indicator request, checked."""
     check_chain(chain)
     if not isinstance(indicator, str) or indicator not in INDICATORS:
@@ -128,37 +130,37 @@ def _arguments(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end
     dev = None if deviations is None else as_floats(deviations, "deviations").ravel().tolist()
     spec, joint = normalise_torque(torque, None, n)
     return th0, om0, dict(t_end=as_float(t_end, "t_end"), dt=as_float(dt, "dt"), name=indicator, k=k_,
-                          torque=core_torque(spec, joint), deviations=dev)
+                          torque=core_torque(spec, joint), pivot=core_pivot(normalise_pivot(pivot)), deviations=dev)
 
 
 def megno(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: float, dt: float = 0.005,
           torque: Optional[TorqueLike] = None, record_every: Integer = 1,
-          progress: Progress = None) -> Union[IndicatorResult, npt.NDArray[np.float64]]:
+          progress: Progress = None, *, pivot: Optional[Pivot] = None) -> Union[IndicatorResult, npt.NDArray[np.float64]]:
     """Time-averaged MEGNO ``<Y>`` (Cincotta & Simo 2000): :func:`indicator` with ``"megno"``."""
     return indicator(chain, theta0, omega0, t_end, "megno", dt=dt, torque=torque, record_every=record_every,
-                     progress=progress)
+                     progress=progress, pivot=pivot)
 
 
 def fli(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: float, dt: float = 0.005,
         orthogonal: bool = False, torque: Optional[TorqueLike] = None, record_every: Integer = 1,
-        progress: Progress = None) -> Union[IndicatorResult, npt.NDArray[np.float64]]:
+        progress: Progress = None, *, pivot: Optional[Pivot] = None) -> Union[IndicatorResult, npt.NDArray[np.float64]]:
     """Fast Lyapunov indicator (Froeschle et al. 1997), or with ``orthogonal`` the OFLI (Fouchard
     et al. 2002): :func:`indicator` with ``"fli"`` / ``"ofli"``."""
     return indicator(chain, theta0, omega0, t_end, "ofli" if orthogonal else "fli", dt=dt, torque=torque,
-                     record_every=record_every, progress=progress)
+                     record_every=record_every, progress=progress, pivot=pivot)
 
 
 def sali(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: float, dt: float = 0.005,
          torque: Optional[TorqueLike] = None, record_every: Integer = 1,
-         progress: Progress = None) -> Union[IndicatorResult, npt.NDArray[np.float64]]:
+         progress: Progress = None, *, pivot: Optional[Pivot] = None) -> Union[IndicatorResult, npt.NDArray[np.float64]]:
     """Smaller alignment index (Skokos 2001): :func:`indicator` with ``"sali"``."""
     return indicator(chain, theta0, omega0, t_end, "sali", dt=dt, torque=torque, record_every=record_every,
-                     progress=progress)
+                     progress=progress, pivot=pivot)
 
 
 def gali(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: float, k: Integer, dt: float = 0.005,
          torque: Optional[TorqueLike] = None, record_every: Integer = 1,
-         progress: Progress = None) -> Union[IndicatorResult, npt.NDArray[np.float64]]:
+         progress: Progress = None, *, pivot: Optional[Pivot] = None) -> Union[IndicatorResult, npt.NDArray[np.float64]]:
     """Generalized alignment index GALI_k (Skokos et al. 2007), ``2 <= k <= 2N``."""
     return indicator(chain, theta0, omega0, t_end, "gali", k=k, dt=dt, torque=torque, record_every=record_every,
-                     progress=progress)
+                     progress=progress, pivot=pivot)

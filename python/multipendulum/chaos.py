@@ -333,7 +333,7 @@ def indicator_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_end: float
                   k: Optional[Integer] = None, dt: float = 0.005, vary: Vary = ("theta", 0, "theta", 1),
                   base_theta: Optional[npt.ArrayLike] = None, base_omega: Optional[npt.ArrayLike] = None,
                   torque: Optional[TorqueLike] = None, certify: bool = False, threshold: Optional[float] = None,
-                  progress: Progress = None) -> IndicatorMap:
+                  progress: Progress = None, *, pivot: Optional[Pivot] = None) -> IndicatorMap:
     """A chaos-indicator map over a grid of two initial values, as :func:`flip_map` varies them
     (``vary``, ``base_theta``, ``base_omega``); each cell :func:`indicator` at ``t_end``, in
     parallel (undriven chains in SIMD lanes, eight cells at a time, damping and friction included).
@@ -361,10 +361,11 @@ def indicator_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_end: float
     values: npt.NDArray[np.float64]
     if check_certify(certify, threshold, "threshold"):
         values, uncertain, used = certified_indicator(chain, theta0, omega0, t_end, indicator, k=k, dt=dt, torque=torque,
-                                                      threshold=threshold, progress=progress)
+                                                      threshold=threshold, progress=progress, pivot=pivot)
     else:
         values = cast("npt.NDArray[np.float64]",  # a batch: the values at t_end
-                      indicator_fn(chain, theta0, omega0, t_end, indicator, k=k, dt=dt, torque=torque, progress=progress))
+                      indicator_fn(chain, theta0, omega0, t_end, indicator, k=k, dt=dt, torque=torque, progress=progress,
+                                   pivot=pivot))
     return IndicatorMap(x, y, values, indicator, float(t_end), None if k is None else int(k), uncertain, used)
 
 

@@ -843,8 +843,8 @@ def _add_atlas(sub, common) -> None:
                     "[initial]) and colour each by a chaos indicator at --t-end, computed with the "
                     "variational equations: MEGNO, FLI, OFLI, SALI, GALI_k (with --k) or the largest "
                     "Lyapunov exponent. --indicator flip draws the flip-time map, exactly as `fractal` "
-                    "does (--t-end is then its --t-max). The map is of the free chain (a scenario's "
-                    "torque is not applied); its damping and friction are in it. Runs on all cores; "
+                    "does (--t-end is then its --t-max). The map is of the chain with its damping, friction "
+                    "and pivot motion (a scenario's torque is not applied). Runs on all cores; "
                     "--dask spreads it over a cluster and --zarr writes it chunk by chunk.",
     )
     _add_map_options(p, zarr_what="values, x, y; with --indicator flip times, allowed, x, y")
@@ -970,18 +970,17 @@ def _cmd_atlas(args) -> int:
     _atlas_budget(args, n, t_end, dt, f"a {label} map")
     x, y = _map_axes(args, vary)
     base_theta, base_omega = np.asarray(scenario.theta0, float), np.asarray(scenario.omega0, float)
+    pivot = scenario.build_base().get("pivot")
     kwargs = dict(t_end=t_end, indicator=name, k=args.k, dt=dt, vary=vary, base_theta=base_theta,
-                  base_omega=base_omega, certify=args.certify, threshold=args.threshold)
+                  base_omega=base_omega, certify=args.certify, threshold=args.threshold, pivot=pivot)
     # Arguments checked on one state (the core refuses an empty batch only after checking them):
     # a bad one fails here, before the header and the work.
-    mp.indicator(chain, base_theta[None], base_omega[None], t_end, name, k=args.k, dt=dt)
+    mp.indicator(chain, base_theta[None], base_omega[None], t_end, name, k=args.k, dt=dt, pivot=pivot)
     title = scenario.name or args.scenario.stem
     _say(args, f"{title}: {label} map of {args.size} x {args.size} initial states, N = {n}, "
                f"t_end = {t_end:g} s, dt = {dt:g} s" + (" (certified: again at dt/2)" if args.certify else ""))
     if scenario.torque is not None:
         _say(args, "  note: the scenario's torque is not applied; the map is of the free chain")
-    if scenario.pivot is not None:
-        _say(args, "  note: the scenario's pivot motion is not applied (the indicators take a fixed pivot)")
     start = time.perf_counter()
     with ProgressBar(f"{name} map", quiet=args.quiet) as bar:
         if args.dask is not None or args.zarr is not None or args.chunks is not None:

@@ -605,21 +605,21 @@ def open_flip_volume(path: PathLike) -> FlipVolume:
 def _map_indicator_block(yb: npt.NDArray[np.float64], xb: npt.NDArray[np.float64], chain: Chain,
                          vary: Tuple[str, int, str, int], th_base: npt.NDArray[np.float64],
                          om_base: npt.NDArray[np.float64], t_end: float, indicator: str, k: Optional[Integer],
-                         dt: float, torque: Optional[TorqueLike]) -> npt.NDArray[np.float64]:
+                         dt: float, torque: Optional[TorqueLike], pivot: Optional[Pivot]) -> npt.NDArray[np.float64]:
     theta0, omega0 = _grid(yb, xb, vary, th_base, om_base)
     return cast("npt.NDArray[np.float64]",  # a batch: the values at t_end, shape (rows, columns)
-                indicator_fn(chain, theta0, omega0, t_end, indicator, k=k, dt=dt, torque=torque))
+                indicator_fn(chain, theta0, omega0, t_end, indicator, k=k, dt=dt, torque=torque, pivot=pivot))
 
 
 def _map_certified_indicator_block(yb: npt.NDArray[np.float64], xb: npt.NDArray[np.float64], chain: Chain,
                                    vary: Tuple[str, int, str, int], th_base: npt.NDArray[np.float64],
                                    om_base: npt.NDArray[np.float64], t_end: float, indicator: str,
                                    k: Optional[Integer], dt: float, torque: Optional[TorqueLike],
-                                   threshold: Optional[float]) -> npt.NDArray[np.float64]:
+                                   pivot: Optional[Pivot], threshold: Optional[float]) -> npt.NDArray[np.float64]:
     # A certified block's values and uncertain flags (as 0 or 1) along a last axis of 2.
     theta0, omega0 = _grid(yb, xb, vary, th_base, om_base)
     values, uncertain, _ = certified_indicator(chain, theta0, omega0, t_end, indicator, k=k, dt=dt, torque=torque,
-                                               threshold=threshold)
+                                               threshold=threshold, pivot=pivot)
     return np.stack([values, uncertain.astype(np.float64)], axis=-1)
 
 
@@ -629,7 +629,8 @@ def sweep_indicator_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_end:
                         base_omega: Optional[npt.ArrayLike] = None, torque: Optional[TorqueLike] = None,
                         certify: bool = False, threshold: Optional[float] = None,
                         chunks: Union[None, Integer, Tuple[Integer, Integer]] = None, scheduler: Scheduler = None,
-                        zarr: Optional[PathLike] = None, progress: Progress = None) -> IndicatorMap:
+                        zarr: Optional[PathLike] = None, progress: Progress = None, *,
+                        pivot: Optional[Pivot] = None) -> IndicatorMap:
     """:func:`multipendulum.indicator_map` on Dask, for grids too large for one process.
 
     Same arguments and the same result (bit for bit: each cell's value does not depend on what
@@ -666,9 +667,9 @@ def sweep_indicator_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_end:
     if certified:
         # (and the threshold as the core takes it)
         used = certified_indicator(chain, th_base[None], om_base[None], t_end, indicator, k=k, dt=dt, torque=torque,
-                                   threshold=threshold)[2]
+                                   threshold=threshold, pivot=pivot)[2]
     else:
-        indicator_fn(chain, th_base[None], om_base[None], t_end, indicator, k=k, dt=dt, torque=torque)
+        indicator_fn(chain, th_base[None], om_base[None], t_end, indicator, k=k, dt=dt, torque=torque, pivot=pivot)
     rows, cols = _chunk_shape(chunks, y.size, x.size)
     rows, cols = min(rows, y.size), min(cols, x.size)
     _check_chunks(rows, cols, n, -(-y.size // rows) * -(-x.size // cols))
@@ -681,7 +682,7 @@ def sweep_indicator_map(chain: Chain, x: npt.ArrayLike, y: npt.ArrayLike, t_end:
     Y = da.from_array(y, chunks=rows)
     X = da.from_array(x, chunks=cols)
     block: Dict[str, Any] = dict(chain=chain, vary=vary, th_base=th_base, om_base=om_base, t_end=float(t_end),
-                                 indicator=indicator, k=k, dt=float(dt), torque=torque)
+                                 indicator=indicator, k=k, dt=float(dt), torque=torque, pivot=pivot)
     arrays = _map_arrays(da, Y, X, "values", functools.partial(_map_indicator_block, **block),
                          functools.partial(_map_certified_indicator_block, threshold=threshold, **block)
                          if certified else None)

@@ -34,7 +34,7 @@ pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
 
 /// A chaos indicator of one run with its history; see `multipendulum_core::chaos::indicators`.
 #[pyfunction]
-#[pyo3(signature = (chain, theta0, omega0, t_end, *, dt, name, k=None, torque=None, deviations=None, record_every=1, progress=None))]
+#[pyo3(signature = (chain, theta0, omega0, t_end, *, dt, name, k=None, torque=None, pivot=None, deviations=None, record_every=1, progress=None))]
 #[allow(clippy::too_many_arguments)]
 fn indicator<'py>(
     py: Python<'py>,
@@ -46,6 +46,7 @@ fn indicator<'py>(
     name: &str,
     k: Option<usize>,
     torque: Option<PyRef<'py, PyTorque>>,
+    pivot: Option<(PyRef<'py, PyAxis>, PyRef<'py, PyAxis>)>,
     deviations: Option<Vec<f64>>,
     record_every: u64,
     progress: Option<Py<PyAny>>,
@@ -54,17 +55,19 @@ fn indicator<'py>(
     let c = &chain.inner;
     let which = Indicator::parse(name, k).map_err(|e| to_py(py, e))?;
     let torque = builtin_only(py, c.n(), torque.as_deref(), "chaos indicators")?;
+    let errors: Errors = Default::default();
+    let pivot = crate::base::pivot(py, pivot, &errors)?;
     let watch = Watch::new();
     let out = interruptible(py, &watch, progress.as_ref(), false, || {
-        indicator(c, &theta0, &omega0, t_end, dt, which, &torque, deviations.as_deref(), record_every, &watch)
+        indicator(c, &theta0, &omega0, t_end, dt, which, (&torque, pivot.as_ref()), deviations.as_deref(), record_every, &watch)
     })?
-    .map_err(|e| to_py(py, e))?;
+    .map_err(|e| take(&errors).unwrap_or_else(|| to_py(py, e)))?;
     Ok((out.value, vec_out(py, out.times), vec_out(py, out.values)))
 }
 
 /// A chaos indicator at `t_end` of each row of flat `theta0`/`omega0`, in parallel.
 #[pyfunction]
-#[pyo3(signature = (chain, theta0, omega0, t_end, *, dt, name, k=None, torque=None, deviations=None, progress=None))]
+#[pyo3(signature = (chain, theta0, omega0, t_end, *, dt, name, k=None, torque=None, pivot=None, deviations=None, progress=None))]
 #[allow(clippy::too_many_arguments)]
 fn indicators<'py>(
     py: Python<'py>,
@@ -76,6 +79,7 @@ fn indicators<'py>(
     name: &str,
     k: Option<usize>,
     torque: Option<PyRef<'py, PyTorque>>,
+    pivot: Option<(PyRef<'py, PyAxis>, PyRef<'py, PyAxis>)>,
     deviations: Option<Vec<f64>>,
     progress: Option<Py<PyAny>>,
 ) -> PyResult<Bound<'py, PyArray1<f64>>> {
@@ -83,12 +87,14 @@ fn indicators<'py>(
     let c = &chain.inner;
     let which = Indicator::parse(name, k).map_err(|e| to_py(py, e))?;
     let torque = builtin_only(py, c.n(), torque.as_deref(), "chaos indicators")?;
+    let errors: Errors = Default::default();
+    let pivot = crate::base::pivot(py, pivot, &errors)?;
     let (theta0, omega0) = (slice("theta0", &theta0)?, slice("omega0", &omega0)?);
     let watch = Watch::units((theta0.len() / c.n().max(1)) as u64);
     let out = interruptible(py, &watch, progress.as_ref(), false, || {
-        indicators(c, theta0, omega0, t_end, dt, which, &torque, deviations.as_deref(), &watch)
+        indicators(c, theta0, omega0, t_end, dt, which, (&torque, pivot.as_ref()), deviations.as_deref(), &watch)
     })?
-    .map_err(|e| to_py(py, e))?;
+    .map_err(|e| take(&errors).unwrap_or_else(|| to_py(py, e)))?;
     Ok(vec_out(py, out))
 }
 
@@ -96,7 +102,7 @@ fn indicators<'py>(
 /// the other side of the threshold at `dt / 2`; `core::chaos::indicators::certified_indicators`)
 /// and the threshold used.
 #[pyfunction]
-#[pyo3(signature = (chain, theta0, omega0, t_end, *, dt, name, k=None, torque=None, deviations=None, threshold=None, progress=None))]
+#[pyo3(signature = (chain, theta0, omega0, t_end, *, dt, name, k=None, torque=None, pivot=None, deviations=None, threshold=None, progress=None))]
 #[allow(clippy::too_many_arguments)]
 fn certified_indicators<'py>(
     py: Python<'py>,
@@ -108,6 +114,7 @@ fn certified_indicators<'py>(
     name: &str,
     k: Option<usize>,
     torque: Option<PyRef<'py, PyTorque>>,
+    pivot: Option<(PyRef<'py, PyAxis>, PyRef<'py, PyAxis>)>,
     deviations: Option<Vec<f64>>,
     threshold: Option<f64>,
     progress: Option<Py<PyAny>>,
@@ -116,12 +123,14 @@ fn certified_indicators<'py>(
     let c = &chain.inner;
     let which = Indicator::parse(name, k).map_err(|e| to_py(py, e))?;
     let torque = builtin_only(py, c.n(), torque.as_deref(), "chaos indicators")?;
+    let errors: Errors = Default::default();
+    let pivot = crate::base::pivot(py, pivot, &errors)?;
     let (theta0, omega0) = (slice("theta0", &theta0)?, slice("omega0", &omega0)?);
     let watch = Watch::units(2 * (theta0.len() / c.n().max(1)) as u64);
     let out = interruptible(py, &watch, progress.as_ref(), false, || {
-        certified_indicators(c, theta0, omega0, t_end, dt, which, &torque, deviations.as_deref(), threshold, &watch)
+        certified_indicators(c, theta0, omega0, t_end, dt, which, (&torque, pivot.as_ref()), deviations.as_deref(), threshold, &watch)
     })?
-    .map_err(|e| to_py(py, e))?;
+    .map_err(|e| take(&errors).unwrap_or_else(|| to_py(py, e)))?;
     Ok((vec_out(py, out.values), PyArray1::from_vec(py, out.uncertain), out.threshold))
 }
 

@@ -255,7 +255,7 @@ fn rk4_rows(rows: &mut Rows, t_end: f64, dt: f64, watch: &Watch) -> Result<()> {
             let t = k as f64 * dt;
             let h = if k + 1 == steps { t_end - t } else { dt };
             y0.copy_from_slice(&y);
-            let mut sys = ChainLanes { chain, tau: &tau, drive: rows.drive, force: &[0.0; LANES], pivot: None, q: &mut q };
+            let mut sys = ChainLanes { chain, tau: &tau, drive: rows.drive, force: &[0.0; LANES], pivot: None, q: &mut q, trig: &mut [] };
             let stepped = rk.step_system(&mut y, t, h, &active, &mut sys);
             let nonfinite = stepped.map_err(|(stage, bad)| {
                 let j = (0..LANES).find(|&j| bad.lanes[j]).unwrap_or(0);
@@ -328,7 +328,7 @@ fn dop853_rows(rows: &mut Rows, t_end: f64, settings: &Settings, watch: &Watch) 
                 trackers[j].start(0.0, &state)?;
             }
         }
-        let mut sys = ChainLanes { chain, tau: &tau, drive: rows.drive, force: &zero, pivot: None, q: &mut q };
+        let mut sys = ChainLanes { chain, tau: &tau, drive: rows.drive, force: &zero, pivot: None, q: &mut q, trig: &mut [] };
         if fresh.iter().any(|&f| f) {
             let first = dp.start(&mut sys, &t, &y, &fresh, &[t_end; LANES], settings.dt).map_err(|(j, why)| {
                 let r = slot[j].unwrap_or(0);

@@ -11,7 +11,8 @@
 //! vector) is run again state by state on the per-state route, which gives its values or the
 //! error that route reports.
 use super::indicators::{orthonormalise, run, Indicator};
-use crate::dynamics::lanes::{accelerations, add_loss_tangent, add_losses, tangent, LaneScratch};
+use crate::dynamics::base::Pivot;
+use crate::dynamics::lanes::{accelerations, add_loss_tangent, add_losses, add_pivot_forces, add_pivot_tangent, tangent, LaneScratch};
 use crate::dynamics::torque::{Builtin, Timed};
 use crate::error::Result;
 use crate::dynamics::lanes::LaneSingular;
@@ -24,11 +25,11 @@ use crate::watch::Watch;
 /// Rows per parallel task: eight groups.
 const CHUNK: usize = 8 * LANES;
 
-/// Whether a batch of indicators goes through the lanes: an undriven chain on a fixed pivot
-/// (damping and friction included), unless
+/// Whether a batch of indicators goes through the lanes: a chain without a cart (damping,
+/// friction, built-in torques and a moving pivot the lanes can evaluate included), unless
 /// `MULTIPENDULUM_LANES` asks for the per-state route. `None`: the per-state route.
-pub fn route(chain: &Chain) -> Result<Option<Path>> {
-    if chain.cart().is_some() {
+pub fn route(chain: &Chain, pivot: Option<&Pivot>) -> Result<Option<Path>> {
+    if chain.cart().is_some() || pivot.is_some_and(|p| !p.in_lanes()) {
         return Ok(None);
     }
     crate::run::bank::requested()
@@ -45,14 +46,14 @@ pub fn indicators(
     steps: u64,
     dt: f64,
     which: Indicator,
-    torque: &Builtin,
+    driven: (&Builtin, Option<&Pivot>),
     start: &[f64],
     deviations: Option<&[f64]>,
     path: Path,
     watch: &Watch,
 ) -> Result<Vec<f64>> {
     let n = chain.n();
-    let job = Job::new(chain, torque, steps, dt, which, start, deviations, watch);
+    let job = Job::new(chain, driven, steps, dt, which, start, deviations, watch);
     let parts: Vec<Vec<f64>> = theta0
         .par_chunks(n * CHUNK)
         .zip(omega0.par_chunks(n * CHUNK))
@@ -75,13 +76,13 @@ pub fn indicator(
     steps: u64,
     dt: f64,
     which: Indicator,
-    torque: &Builtin,
+    driven: (&Builtin, Option<&Pivot>),
     start: &[f64],
     path: Path,
     watch: &Watch,
     observe: &mut dyn FnMut(u64, f64),
 ) -> Result<Option<f64>> {
-    let job = Job::new(chain, torque, steps, dt, which, start, None, watch);
+    let job = Job::new(chain, driven, steps, dt, which, start, None, watch);
     let mut group = Group::new(chain, which);
     let mut history = |step: u64, v: f64| {
         if step % 64 == 0 {
@@ -106,6 +107,8 @@ struct Job<'a> {
     /// A built-in generalized torque of time (none: undriven).
     drive: Option<Timed>,
     torque: &'a Builtin,
+    /// A moving pivot the lanes evaluate.
+    pivot: Option<&'a Pivot>,
     steps: u64,
     dt: f64,
     which: Indicator,
@@ -116,9 +119,9 @@ struct Job<'a> {
 
 impl<'a> Job<'a> {
     #[allow(clippy::too_many_arguments)]
-    fn new(chain: &'a Chain, torque: &'a Builtin, steps: u64, dt: f64, which: Indicator, start: &'a [f64], deviations: Option<&'a [f64]>, watch: &'a Watch) -> Self {
+    fn new(chain: &'a Chain, (torque, pivot): (&'a Builtin, Option<&'a Pivot>), steps: u64, dt: f64, which: Indicator, start: &'a [f64], deviations: Option<&'a [f64]>, watch: &'a Watch) -> Self {
         let drive = Timed::generalized(torque);
-        Job { chain, drive, torque, steps, dt, which, start, deviations, watch }
+        Job { chain, drive, torque, pivot, steps, dt, which, start, deviations, watch }
     }
 
     fn chunk_on(&self, path: Path, th: &[f64], om: &[f64]) -> Result<Vec<f64>> {
@@ -160,7 +163,7 @@ impl<'a> Job<'a> {
                     // Some state failed: the per-state route gives the values or its error.
                     for j in 0..count {
                         let row = (&th[n * j..n * (j + 1)], &om[n * j..n * (j + 1)]);
-                        let value = run(self.chain, row.0, row.1, self.steps, self.dt, self.which, self.torque, self.deviations, self.watch, false, &mut |_, _| {})?;
+                        let value = run(self.chain, row.0, row.1, self.steps, self.dt, self.which, (self.torque, self.pivot), self.deviations, self.watch, false, &mut |_, _| {})?;
                         out.push(value);
                     }
                 }
@@ -180,9 +183,12 @@ struct TangentLanes<'a> {
     tau: &'a [Lane],
     /// Torques of time, in place of `tau` (a time-only torque has no tangent of its own).
     drive: Option<&'a Timed>,
-    /// A lossy chain's forces and their tangent.
+    /// A moving pivot: its forces ([`add_pivot_forces`]) and their tangent along `d_theta`.
+    pivot: Option<&'a Pivot>,
+    /// A lossy or shaken chain's forces and their tangent; the angles' trig for the pivot's.
     q: &'a mut [Lane],
     dq: &'a mut [Lane],
+    trig: &'a mut [Lane],
 }
 
 impl LaneSystem for TangentLanes<'_> {
@@ -193,10 +199,14 @@ impl LaneSystem for TangentLanes<'_> {
         let (head, tail) = dst.split_at_mut(d);
         head[..n].copy_from_slice(&src[n..d]);
         let lossy = chain.lossy_joints();
-        let forces: &[Lane] = if lossy || self.drive.is_some() {
+        let acc = self.pivot.map(|p| p.acc_lanes(at));
+        let forces: &[Lane] = if lossy || self.drive.is_some() || acc.is_some() {
             match self.drive {
                 Some(drive) => drive.lanes(at, self.q),
                 None => self.q.copy_from_slice(self.tau),
+            }
+            if let Some((ax, ay)) = &acc {
+                add_pivot_forces(chain, (ax, ay), &src[..n], self.q, self.trig);
             }
             if lossy {
                 // The joints' losses as generalized forces, and their own tangent per vector.
@@ -211,8 +221,15 @@ impl LaneSystem for TangentLanes<'_> {
             let v = &src[d * (j + 1)..d * (j + 2)];
             let dv = &mut tail[d * j..d * (j + 1)];
             dv[..n].copy_from_slice(&v[n..]);
-            let extra = if lossy {
-                add_loss_tangent(chain, &src[n..d], &v[n..], self.dq);
+            let extra = if lossy || acc.is_some() {
+                if lossy {
+                    add_loss_tangent(chain, &src[n..d], &v[n..], self.dq);
+                } else {
+                    self.dq.fill([0.0; LANES]);
+                }
+                if let Some((ax, ay)) = &acc {
+                    add_pivot_tangent(chain, (ax, ay), self.trig, &v[..n], self.dq);
+                }
                 Some(&*self.dq)
             } else {
                 None
@@ -255,6 +272,7 @@ struct Group {
     scratch: LaneScratch,
     q: Vec<Lane>,
     dq: Vec<Lane>,
+    trig: Vec<Lane>,
 }
 
 impl Group {
@@ -262,7 +280,7 @@ impl Group {
         let (n, k, megno) = (chain.n(), which.vectors(), which == Indicator::Megno);
         let dim = 2 * n * (1 + k) + 2 * usize::from(megno);
         let lanes = |m| vec![[0.0; LANES]; m];
-        Group { n, k, megno, y: lanes(dim), rk: Rk4Lanes::with_dim(n, dim), tau: lanes(n), flow: lanes(n), scratch: LaneScratch::new(n), q: lanes(n), dq: lanes(n) }
+        Group { n, k, megno, y: lanes(dim), rk: Rk4Lanes::with_dim(n, dim), tau: lanes(n), flow: lanes(n), scratch: LaneScratch::new(n), q: lanes(n), dq: lanes(n), trig: lanes(2 * n) }
     }
 
     #[cfg(target_arch = "x86_64")]
@@ -300,14 +318,14 @@ impl Group {
         }
         let (mut log_growth, mut fli) = ([0.0f64; LANES], [0.0f64; LANES]);
         let mut gali = vec![0.0; k * d];
-        let Group { y, rk, tau, flow, megno, scratch: flow_scratch, q, dq, .. } = self;
+        let Group { y, rk, tau, flow, megno, scratch: flow_scratch, q, dq, trig, .. } = self;
         let megno = *megno;
         for step in 1..=job.steps {
             let t = (step - 1) as f64 * job.dt;
             // Every step: a relaxed load against eight states' step (long chains take long).
             job.watch.check(t)?;
             let h = job.dt;
-            let mut sys = TangentLanes { chain, k, megno, tau, drive: job.drive.as_ref(), q: &mut q[..], dq: &mut dq[..] };
+            let mut sys = TangentLanes { chain, k, megno, tau, drive: job.drive.as_ref(), pivot: job.pivot, q: &mut q[..], dq: &mut dq[..], trig: &mut trig[..] };
             let stepped = rk.step_system(y, t, h, &active, &mut sys);
             match stepped {
                 Ok(nonfinite) if !nonfinite.iter().any(|&b| b) => {}
@@ -447,7 +465,7 @@ mod tests {
     fn reference_driven(chain: &Chain, th: &[f64], om: &[f64], steps: u64, dt: f64, which: Indicator, torque: &Builtin) -> Vec<f64> {
         let n = chain.n();
         (0..th.len() / n)
-            .map(|i| run(chain, &th[n * i..n * (i + 1)], &om[n * i..n * (i + 1)], steps, dt, which, torque, None, &Watch::new(), false, &mut |_, _| {}).unwrap())
+            .map(|i| run(chain, &th[n * i..n * (i + 1)], &om[n * i..n * (i + 1)], steps, dt, which, (torque, None), None, &Watch::new(), false, &mut |_, _| {}).unwrap())
             .collect()
     }
 
@@ -461,10 +479,40 @@ mod tests {
             let (steps, dt) = (150, 0.005);
             for which in [Indicator::Megno, Indicator::Fli, Indicator::Sali, Indicator::Gali(2)] {
                 let start = super::super::indicators::initial_deviations(2 * n, which.vectors());
-                let got = indicators(chain, &th, &om, steps, dt, which, &torque, &start, None, Path::best(), &Watch::new()).unwrap();
+                let got = indicators(chain, &th, &om, steps, dt, which, (&torque, None), &start, None, Path::best(), &Watch::new()).unwrap();
                 let want = reference_driven(chain, &th, &om, steps, dt, which, &torque);
                 let undriven = reference(chain, &th, &om, steps, dt, which);
                 assert!(want.iter().zip(&undriven).any(|(a, b)| (a - b).abs() > 1e-3 * (1.0 + b.abs())), "the torque matters");
+                for (i, (g, w)) in got.iter().zip(&want).enumerate() {
+                    assert!((g - w).abs() <= 1e-12 * (1.0 + w.abs()), "N = {n}, {which:?}, row {i}: {g} vs {w}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn lanes_on_a_shaken_pivot_agree_with_the_per_state_route() {
+        use crate::dynamics::base::Axis;
+        // A sinusoid along x, a cubic table along y: both evaluated in the lanes.
+        let t: Vec<f64> = (0..40).map(|k| 0.05 * k as f64).collect();
+        let table = Axis::spline("y", t.clone(), t.iter().map(|t| 0.03 * (11.0 * t).sin()).collect()).unwrap();
+        let pivot = Pivot { x: Axis::sinusoid("x", 0.05, 7.0, 0.3, 0.0).unwrap(), y: table };
+        let chains = chains();
+        for chain in [&chains[1], &chains[2], &chains[4]] {
+            let n = chain.n();
+            let (th, om) = rows(n, 11);
+            let (steps, dt) = (150, 0.005);
+            for which in [Indicator::Megno, Indicator::Fli, Indicator::Sali, Indicator::Gali(2)] {
+                let start = super::super::indicators::initial_deviations(2 * n, which.vectors());
+                let got = indicators(chain, &th, &om, steps, dt, which, (&Builtin::None, Some(&pivot)), &start, None, Path::best(), &Watch::new()).unwrap();
+                let want: Vec<f64> = (0..th.len() / n)
+                    .map(|i| {
+                        let row = (&th[n * i..n * (i + 1)], &om[n * i..n * (i + 1)]);
+                        run(chain, row.0, row.1, steps, dt, which, (&Builtin::None, Some(&pivot)), None, &Watch::new(), false, &mut |_, _| {}).unwrap()
+                    })
+                    .collect();
+                let still = reference(chain, &th, &om, steps, dt, which);
+                assert!(want.iter().zip(&still).any(|(a, b)| (a - b).abs() > 1e-3 * (1.0 + b.abs())), "the pivot matters");
                 for (i, (g, w)) in got.iter().zip(&want).enumerate() {
                     assert!((g - w).abs() <= 1e-12 * (1.0 + w.abs()), "N = {n}, {which:?}, row {i}: {g} vs {w}");
                 }
@@ -480,7 +528,7 @@ mod tests {
             let (steps, dt) = (150, 0.005);
             for which in every(n) {
                 let start = super::super::indicators::initial_deviations(2 * n, which.vectors());
-                let got = indicators(&chain, &th, &om, steps, dt, which, &Builtin::None, &start, None, Path::best(), &Watch::new()).unwrap();
+                let got = indicators(&chain, &th, &om, steps, dt, which, (&Builtin::None, None), &start, None, Path::best(), &Watch::new()).unwrap();
                 let want = reference(&chain, &th, &om, steps, dt, which);
                 for (i, (g, w)) in got.iter().zip(&want).enumerate() {
                     assert!((g - w).abs() <= 1e-12 * (1.0 + w.abs()), "N = {n}, {which:?}, row {i}: {g} vs {w}");
@@ -495,12 +543,12 @@ mod tests {
         let chain = &chains()[2];
         let (th, om) = rows(3, 11);
         for which in [Indicator::Megno, Indicator::Ofli, Indicator::Gali(3)] {
-            let batch = super::super::indicators::indicators(chain, &th, &om, 0.6, 0.005, which, &Builtin::None, None, &Watch::new()).unwrap();
+            let batch = super::super::indicators::indicators(chain, &th, &om, 0.6, 0.005, which, (&Builtin::None, None), None, &Watch::new()).unwrap();
             for i in [0, 9] {
-                let alone = one(chain, &th[3 * i..3 * i + 3], &om[3 * i..3 * i + 3], 0.6, 0.005, which, &Builtin::None, None, 7, &Watch::new()).unwrap();
+                let alone = one(chain, &th[3 * i..3 * i + 3], &om[3 * i..3 * i + 3], 0.6, 0.005, which, (&Builtin::None, None), None, 7, &Watch::new()).unwrap();
                 assert_eq!(alone.value.to_bits(), batch[i].to_bits(), "{which:?}, row {i}");
                 let mut want = Vec::new();
-                run(chain, &th[3 * i..3 * i + 3], &om[3 * i..3 * i + 3], 120, 0.005, which, &Builtin::None, None, &Watch::new(), true, &mut |s, v| {
+                run(chain, &th[3 * i..3 * i + 3], &om[3 * i..3 * i + 3], 120, 0.005, which, (&Builtin::None, None), None, &Watch::new(), true, &mut |s, v| {
                     if s % 7 == 0 || s == 120 {
                         want.push(v);
                     }
@@ -519,7 +567,7 @@ mod tests {
         let chain = &chains()[2];
         let (th, om) = rows(3, 70);
         let start = super::super::indicators::initial_deviations(6, 1);
-        let go = |th: &[f64], om: &[f64], path| indicators(chain, th, om, 100, 0.01, Indicator::Megno, &Builtin::None, &start, None, path, &Watch::new()).unwrap();
+        let go = |th: &[f64], om: &[f64], path| indicators(chain, th, om, 100, 0.01, Indicator::Megno, (&Builtin::None, None), &start, None, path, &Watch::new()).unwrap();
         let reference = go(&th, &om, Path::Portable);
         for path in Path::ALL.into_iter().filter(|p| p.available()) {
             assert_eq!(go(&th, &om, path), reference, "{path:?}");
@@ -533,18 +581,18 @@ mod tests {
         let chain = &chains()[1];
         let (th, mut om) = rows(2, 10);
         let start = super::super::indicators::initial_deviations(4, 1);
-        let go = |th: &[f64], om: &[f64]| indicators(chain, th, om, 200, 0.01, Indicator::Fli, &Builtin::None, &start, None, Path::best(), &Watch::new());
+        let go = |th: &[f64], om: &[f64]| indicators(chain, th, om, 200, 0.01, Indicator::Fli, (&Builtin::None, None), &start, None, Path::best(), &Watch::new());
         om[2 * 3] = 1e155; // row 3 overflows
         let e = go(&th, &om).unwrap_err();
-        let scalar = run(chain, &th[6..8], &om[6..8], 200, 0.01, Indicator::Fli, &Builtin::None, None, &Watch::new(), false, &mut |_, _| {}).unwrap_err();
+        let scalar = run(chain, &th[6..8], &om[6..8], 200, 0.01, Indicator::Fli, (&Builtin::None, None), None, &Watch::new(), false, &mut |_, _| {}).unwrap_err();
         assert!(matches!(e, Error::Integration { .. }), "{e}");
         assert_eq!(e.to_string(), scalar.to_string());
         // A group the lanes cannot finish (here: started from a zero vector, which collapses)
         // takes the per-state route, whose values it returns.
         let dev = [1.0, 0.0, 0.0, 0.0];
-        let got = indicators(chain, &th[..4], &om[..4], 10, 0.01, Indicator::Fli, &Builtin::None, &[0.0; 4], Some(&dev), Path::best(), &Watch::new()).unwrap();
+        let got = indicators(chain, &th[..4], &om[..4], 10, 0.01, Indicator::Fli, (&Builtin::None, None), &[0.0; 4], Some(&dev), Path::best(), &Watch::new()).unwrap();
         for (i, g) in got.iter().enumerate() {
-            let want = run(chain, &th[2 * i..2 * i + 2], &om[2 * i..2 * i + 2], 10, 0.01, Indicator::Fli, &Builtin::None, Some(&dev), &Watch::new(), false, &mut |_, _| {}).unwrap();
+            let want = run(chain, &th[2 * i..2 * i + 2], &om[2 * i..2 * i + 2], 10, 0.01, Indicator::Fli, (&Builtin::None, None), Some(&dev), &Watch::new(), false, &mut |_, _| {}).unwrap();
             assert_eq!(g.to_bits(), want.to_bits());
         }
     }

@@ -22,6 +22,7 @@
 //! directions, all the indicators see, are unchanged by it).
 use super::{check_steps, Tangent};
 use crate::dynamics::system::{OdeSystem, NON_FINITE};
+use crate::dynamics::base::{Drive, Pivot};
 use crate::dynamics::torque::Builtin;
 use crate::error::{check_finite, Error, Result};
 use crate::integrators::Rk4;
@@ -162,6 +163,11 @@ fn norm(v: &[f64]) -> f64 {
     v.iter().map(|x| x * x).sum::<f64>().sqrt()
 }
 
+/// A pivot that moves (one held anywhere is the fixed one: `None`).
+fn moving(pivot: Option<&Pivot>) -> Option<&Pivot> {
+    pivot.filter(|p| !p.is_fixed())
+}
+
 /// The checks every call makes; the number of steps.
 fn check(chain: &Chain, t_end: f64, dt: f64, which: Indicator, deviations: Option<&[f64]>) -> Result<u64> {
     let d = 2 * chain.n();
@@ -202,12 +208,13 @@ pub fn indicator(
     t_end: f64,
     dt: f64,
     which: Indicator,
-    torque: &Builtin,
+    (torque, pivot): (&Builtin, Option<&Pivot>),
     deviations: Option<&[f64]>,
     record_every: u64,
     watch: &Watch,
 ) -> Result<Series> {
     let steps = check(chain, t_end, dt, which, deviations)?;
+    let pivot = moving(pivot);
     if record_every == 0 {
         return Err(Error::input("record_every must be >= 1 step, got 0"));
     }
@@ -222,11 +229,11 @@ pub fn indicator(
     };
     // In lanes where a batch would be, so that a state's value is its value in any batch.
     let mut value = None;
-    if let Some(path) = super::indicator_lanes::route(chain)? {
+    if let Some(path) = super::indicator_lanes::route(chain, pivot)? {
         chain.check_state("theta0", theta0)?;
         chain.check_state("omega0", omega0)?;
         let start = start_vectors(2 * chain.n(), which.vectors(), deviations)?;
-        value = super::indicator_lanes::indicator(chain, theta0, omega0, steps, dt, which, torque, &start, path, watch, &mut |step, v| keep(&mut series, step, v))?;
+        value = super::indicator_lanes::indicator(chain, theta0, omega0, steps, dt, which, (torque, pivot), &start, path, watch, &mut |step, v| keep(&mut series, step, v))?;
     }
     let value = match value {
         Some(v) => v,
@@ -234,7 +241,7 @@ pub fn indicator(
             // (what the lanes recorded of a run they could not finish is dropped)
             series.times.clear();
             series.values.clear();
-            run(chain, theta0, omega0, steps, dt, which, torque, deviations, watch, true, &mut |step, v| keep(&mut series, step, v))?
+            run(chain, theta0, omega0, steps, dt, which, (torque, pivot), deviations, watch, true, &mut |step, v| keep(&mut series, step, v))?
         }
     };
     series.value = value;
@@ -251,28 +258,29 @@ pub fn indicators(
     t_end: f64,
     dt: f64,
     which: Indicator,
-    torque: &Builtin,
+    (torque, pivot): (&Builtin, Option<&Pivot>),
     deviations: Option<&[f64]>,
     watch: &Watch,
 ) -> Result<Vec<f64>> {
     let n = chain.n();
     let steps = check(chain, t_end, dt, which, deviations)?;
+    let pivot = moving(pivot);
     let b = crate::dynamics::rows::count("theta0", theta0.len(), n)?;
     if omega0.len() != theta0.len() {
         return Err(Error::input(format!("theta0 and omega0 must both have shape (B, {n})")));
     }
-    if let Some(path) = super::indicator_lanes::route(chain)? {
+    if let Some(path) = super::indicator_lanes::route(chain, pivot)? {
         for i in 0..b {
             chain.check_state("theta0", &theta0[i * n..(i + 1) * n])?;
             chain.check_state("omega0", &omega0[i * n..(i + 1) * n])?;
         }
         let start = start_vectors(2 * n, which.vectors(), deviations)?;
-        return super::indicator_lanes::indicators(chain, theta0, omega0, steps, dt, which, torque, &start, deviations, path, watch);
+        return super::indicator_lanes::indicators(chain, theta0, omega0, steps, dt, which, (torque, pivot), &start, deviations, path, watch);
     }
     let rows: Vec<Result<f64>> = (0..b)
         .into_par_iter()
         .map(|i| {
-            let r = run(chain, &theta0[i * n..(i + 1) * n], &omega0[i * n..(i + 1) * n], steps, dt, which, torque, deviations, watch, false, &mut |_, _| {});
+            let r = run(chain, &theta0[i * n..(i + 1) * n], &omega0[i * n..(i + 1) * n], steps, dt, which, (torque, pivot), deviations, watch, false, &mut |_, _| {});
             watch.add_units(1);
             r
         })
@@ -292,7 +300,7 @@ pub fn certified_indicators(
     t_end: f64,
     dt: f64,
     which: Indicator,
-    torque: &Builtin,
+    driven: (&Builtin, Option<&Pivot>),
     deviations: Option<&[f64]>,
     threshold: Option<f64>,
     watch: &Watch,
@@ -308,8 +316,8 @@ pub fn certified_indicators(
             )))
         }
     };
-    let values = indicators(chain, theta0, omega0, t_end, dt, which, torque, deviations, watch)?;
-    let fine = indicators(chain, theta0, omega0, t_end, 0.5 * dt, which, torque, deviations, watch)?;
+    let values = indicators(chain, theta0, omega0, t_end, dt, which, driven, deviations, watch)?;
+    let fine = indicators(chain, theta0, omega0, t_end, 0.5 * dt, which, driven, deviations, watch)?;
     let chaotic = |v: f64| if above { v > threshold } else { v < threshold };
     let uncertain = values.iter().zip(&fine).map(|(&a, &b)| chaotic(a) != chaotic(b)).collect();
     Ok(CertifiedValues { values, uncertain, threshold, above })
@@ -334,7 +342,7 @@ pub(super) fn run(
     steps: u64,
     dt: f64,
     which: Indicator,
-    torque: &Builtin,
+    (torque, pivot): (&Builtin, Option<&Pivot>),
     deviations: Option<&[f64]>,
     watch: &Watch,
     history: bool,
@@ -346,7 +354,7 @@ pub(super) fn run(
     chain.check_state("omega0", omega0)?;
     let k = which.vectors();
     let megno = which == Indicator::Megno;
-    let mut sys = Tangent::new(chain, torque.clone(), k, megno);
+    let mut sys = Tangent::new(chain, torque.clone(), Drive { pivot: pivot.cloned(), force: None }, k, megno);
     let dim = sys.dim();
     let mut y = vec![0.0; dim];
     y[..n].copy_from_slice(theta0);
@@ -448,7 +456,7 @@ mod tests {
     fn bad_requests_are_refused_by_name() {
         let chain = Chain::new(&[1.0, 1.0], &[1.0, 1.0], None, None, 9.81).unwrap();
         let w = Watch::new();
-        let e = |which, dev: Option<&[f64]>| indicator(&chain, &[1.0, 0.0], &[0.0; 2], 1.0, 0.01, which, &Builtin::None, dev, 1, &w).unwrap_err().to_string();
+        let e = |which, dev: Option<&[f64]>| indicator(&chain, &[1.0, 0.0], &[0.0; 2], 1.0, 0.01, which, (&Builtin::None, None), dev, 1, &w).unwrap_err().to_string();
         assert_eq!(e(Indicator::Gali(5), None), "GALI's order k must be between 2 and 2N = 4, got 5");
         assert_eq!(e(Indicator::Gali(1), None), "GALI's order k must be between 2 and 2N = 4, got 1");
         assert_eq!(e(Indicator::Sali, Some(&[1.0; 4])), "deviations must have shape (2, 2N = 4), got 4 values");

@@ -36,13 +36,9 @@ struct Tangent<'c> {
 }
 
 impl<'c> Tangent<'c> {
-    fn new(chain: &'c Chain, torque: Builtin, k: usize, megno: bool) -> Self {
-        Self::driven(chain, torque, Drive::none(), k, megno)
-    }
-
-    /// With the base driven; the drive must fit the chain ([`Drive::check`]) and its cart
-    /// force be of time alone (its derivative along the state is not known).
-    fn driven(chain: &'c Chain, torque: Builtin, drive: Drive, k: usize, megno: bool) -> Self {
+    /// The base's `drive` must fit the chain ([`Drive::check`]) and its cart force be of time
+    /// alone (its derivative along the state is not known).
+    fn new(chain: &'c Chain, torque: Builtin, drive: Drive, k: usize, megno: bool) -> Self {
         let n = chain.n();
         let general = !chain.is_ideal() || drive.moving_pivot().is_some();
         Tangent { chain, torque, drive, k, megno, general, ws: Workspace::new(n), tau: vec![0.0; n], scratch: vec![0.0; TANGENT_SCRATCH * n] }
@@ -194,7 +190,7 @@ pub fn lyapunov(
     if !cart0.iter().all(|v| v.is_finite()) {
         return Err(Error::input(format!("the cart's initial position and velocity must be finite, got {cart0:?}")));
     }
-    let mut sys = Tangent::driven(chain, torque, drive, k, false);
+    let mut sys = Tangent::new(chain, torque, drive, k, false);
     let d = sys.dim();
     let mut y = vec![0.0; d];
     y[..n].copy_from_slice(theta0);

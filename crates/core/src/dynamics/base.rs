@@ -170,6 +170,14 @@ impl Pivot {
         ![&self.x, &self.y].iter().any(|a| matches!(a, Axis::Function(_)))
     }
 
+    /// The acceleration `(a_x, a_y)` at each lane's time ([`Axis::acc_lanes`]); NaN where an
+    /// axis is a function (never asked of the lanes: [`Pivot::in_lanes`]).
+    #[inline(always)]
+    pub fn acc_lanes(&self, at: &Lane) -> (Lane, Lane) {
+        let nan = [f64::NAN; LANES];
+        (self.x.acc_lanes(at).unwrap_or(nan), self.y.acc_lanes(at).unwrap_or(nan))
+    }
+
     #[inline]
     pub fn eval(&self, t: f64) -> Result<Motion> {
         let (x, y) = (self.x.eval(t)?, self.y.eval(t)?);

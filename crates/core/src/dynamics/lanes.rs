@@ -442,6 +442,36 @@ pub fn add_losses(chain: &Chain, omega: &[Lane], q: &mut [Lane], power: &mut Lan
     *power = p;
 }
 
+/// A moving pivot's acceleration `(a_x, a_y)` (each lane's own) as generalized forces added to
+/// `q`: `-h_a (a_x cos theta_a + a_y sin theta_a)`, the change of gravity it makes on each
+/// link. The angles' `sin` and `cos` into `trig` (`[sin (N), cos (N)]`), for
+/// [`add_pivot_tangent`].
+#[inline(always)]
+pub fn add_pivot_forces(chain: &Chain, (ax, ay): (&Lane, &Lane), theta: &[Lane], q: &mut [Lane], trig: &mut [Lane]) {
+    let n = theta.len();
+    for a in 0..n {
+        let (sin, cos) = sin_cos(&theta[a]);
+        let h = chain.h[a];
+        for i in 0..LANES {
+            q[a][i] -= h * ax[i].mul_add(cos[i], ay[i] * sin[i]);
+        }
+        (trig[a], trig[n + a]) = (sin, cos);
+    }
+}
+
+/// The derivative of [`add_pivot_forces`]' forces along `d_theta`, added to `dq`:
+/// `h_a (a_x sin theta_a - a_y cos theta_a) d_theta_a`, from the `trig` it left.
+#[inline(always)]
+pub fn add_pivot_tangent(chain: &Chain, (ax, ay): (&Lane, &Lane), trig: &[Lane], d_theta: &[Lane], dq: &mut [Lane]) {
+    let n = d_theta.len();
+    for a in 0..n {
+        let (sin, cos, h) = (trig[a], trig[n + a], chain.h[a]);
+        for i in 0..LANES {
+            dq[a][i] += h * ax[i].mul_add(sin[i], -(ay[i] * cos[i])) * d_theta[a][i];
+        }
+    }
+}
+
 /// The derivative of [`add_losses`]' forces along `d_omega`, into `dq` (overwritten):
 /// [`Chain::add_loss_tangent`] in lanes.
 #[inline(always)]

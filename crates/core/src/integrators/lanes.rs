@@ -6,11 +6,11 @@
 //! other lanes). Used by the steppers' bank (`run::bank`), the flip times of chains other than the
 //! double pendulum (`chaos::flipkernel`), ensembles and chaos indicators; each compiles it inside
 //! its `#[target_feature]` wrappers.
-use crate::dynamics::lanes::{accelerations, accelerations_on, add_losses, CartLanes, LaneScratch, LaneSingular};
+use crate::dynamics::lanes::{accelerations, accelerations_on, add_losses, add_pivot_forces, CartLanes, LaneScratch, LaneSingular};
 use crate::dynamics::base::Pivot;
 use crate::dynamics::torque::Timed;
 use crate::model::Chain;
-use crate::trig::lanes::{sin_cos, Lane, LANES};
+use crate::trig::lanes::{Lane, LANES};
 
 /// A system of lanes built on a chain's accelerations. A trait rather than a closure: its
 /// `#[inline(always)]` method is compiled inside the caller's `#[target_feature]` wrapper, where
@@ -41,6 +41,8 @@ pub struct ChainLanes<'a> {
     pub pivot: Option<&'a Pivot>,
     /// The generalized forces with the losses (`N` lanes of scratch).
     pub q: &'a mut [Lane],
+    /// The angles' trig for a moving pivot (`2N` lanes of scratch; empty without one).
+    pub trig: &'a mut [Lane],
 }
 
 impl LaneSystem for ChainLanes<'_> {
@@ -70,17 +72,9 @@ impl LaneSystem for ChainLanes<'_> {
             None => self.q.copy_from_slice(self.tau),
         }
         if let Some(pivot) = self.pivot {
-            // The pivot's acceleration as a change of gravity, `(-a_x, -a_y)` on each link's
-            // centre of mass (its work is not tracked here: the flip times need none).
-            let nan = [f64::NAN; LANES];
-            let (ax, ay) = (pivot.x.acc_lanes(at).unwrap_or(nan), pivot.y.acc_lanes(at).unwrap_or(nan));
-            for (a, q) in self.q.iter_mut().enumerate() {
-                let (sin, cos) = sin_cos(&theta[a]);
-                let h = chain.h[a];
-                for i in 0..LANES {
-                    q[i] -= h * ax[i].mul_add(cos[i], ay[i] * sin[i]);
-                }
-            }
+            // (Its work is not tracked here: the flip times need none.)
+            let (ax, ay) = pivot.acc_lanes(at);
+            add_pivot_forces(chain, (&ax, &ay), theta, self.q, self.trig);
         }
         let mut power = [0.0; LANES];
         if lossy {
@@ -171,7 +165,7 @@ impl Rk4Lanes {
     ) -> std::result::Result<[bool; LANES], (usize, LaneSingular)> {
         let mut q = std::mem::take(&mut self.q);
         // The chain's equations do not depend on time: the steps' times are immaterial.
-        let out = self.step_system(y, 0.0, dt, active, &mut ChainLanes { chain, tau, drive: None, force, pivot: None, q: &mut q });
+        let out = self.step_system(y, 0.0, dt, active, &mut ChainLanes { chain, tau, drive: None, force, pivot: None, q: &mut q, trig: &mut [] });
         self.q = q;
         out
     }
