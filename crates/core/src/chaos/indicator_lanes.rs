@@ -362,15 +362,21 @@ impl Group {
                     }
                 }
                 Indicator::Ofli => {
-                    // The flow at the new state, and the part of the vector orthogonal to it.
-                    let forces: &[Lane] = if chain.lossy_joints() {
-                        q.copy_from_slice(tau);
+                    // The flow at the new state (the torque and the pivot at its time, as the
+                    // per-state route's), and the part of the vector orthogonal to it.
+                    let at = [step as f64 * job.dt; LANES];
+                    match job.drive.as_ref() {
+                        Some(drive) => drive.lanes(&at, q),
+                        None => q.copy_from_slice(tau),
+                    }
+                    if let Some(pivot) = job.pivot {
+                        let (ax, ay) = pivot.acc_lanes(&at);
+                        add_pivot_forces(chain, (&ax, &ay), &y[..n], q, trig);
+                    }
+                    if chain.lossy_joints() {
                         add_losses(chain, &y[n..d], q, &mut [0.0; LANES]);
-                        q
-                    } else {
-                        tau
-                    };
-                    if accelerations(chain, &y[..n], &y[n..d], forces, flow, flow_scratch, &active).is_err() {
+                    }
+                    if accelerations(chain, &y[..n], &y[n..d], q, flow, flow_scratch, &active).is_err() {
                         return Ok(None);
                     }
                     for i in 0..LANES {
@@ -477,7 +483,7 @@ mod tests {
             let torque = Builtin::sinusoid(n, vec![3.0; n], (0..n).map(|a| 2.0 + a as f64).collect(), vec![0.2; n], vec![0.5; n]).unwrap();
             let (th, om) = rows(n, 11);
             let (steps, dt) = (150, 0.005);
-            for which in [Indicator::Megno, Indicator::Fli, Indicator::Sali, Indicator::Gali(2)] {
+            for which in [Indicator::Megno, Indicator::Fli, Indicator::Ofli, Indicator::Sali, Indicator::Gali(2)] {
                 let start = super::super::indicators::initial_deviations(2 * n, which.vectors());
                 let got = indicators(chain, &th, &om, steps, dt, which, (&torque, None), &start, None, Path::best(), &Watch::new()).unwrap();
                 let want = reference_driven(chain, &th, &om, steps, dt, which, &torque);
@@ -502,7 +508,7 @@ mod tests {
             let n = chain.n();
             let (th, om) = rows(n, 11);
             let (steps, dt) = (150, 0.005);
-            for which in [Indicator::Megno, Indicator::Fli, Indicator::Sali, Indicator::Gali(2)] {
+            for which in [Indicator::Megno, Indicator::Fli, Indicator::Ofli, Indicator::Sali, Indicator::Gali(2)] {
                 let start = super::super::indicators::initial_deviations(2 * n, which.vectors());
                 let got = indicators(chain, &th, &om, steps, dt, which, (&Builtin::None, Some(&pivot)), &start, None, Path::best(), &Watch::new()).unwrap();
                 let want: Vec<f64> = (0..th.len() / n)
