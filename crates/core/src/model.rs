@@ -202,6 +202,11 @@ impl Chain {
         self.cart
     }
 
+    /// The mechanical state's length: `theta` and `omega` (N each), then a cart's `x` and `v`.
+    pub fn state_len(&self) -> usize {
+        2 * self.n() + 2 * usize::from(self.cart.is_some())
+    }
+
     /// Whether any joint has damping or friction.
     #[inline]
     pub fn lossy_joints(&self) -> bool {

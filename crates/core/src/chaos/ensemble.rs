@@ -298,7 +298,7 @@ fn dop853_rows(rows: &mut Rows, t_end: f64, settings: &Settings, watch: &Watch) 
     // The per-trajectory run's state: the cart's x and v after the angles and rates, then the
     // drive's work, then the losses' (it is -D here, D there; the error norm sees only its
     // size), all controlled.
-    let m = 2 * n + 2 * usize::from(chain.cart().is_some()) + usize::from(rows.drive.is_some()) + usize::from(chain.dissipative());
+    let m = chain.state_len() + usize::from(rows.drive.is_some()) + usize::from(chain.dissipative());
     let mut dp = Dop853Lanes::new(n, m, m, settings.rtol, settings.atol);
     let (mut y, mut y_new, tau, mut q) = (lanes(m), lanes(m), lanes(n), lanes(n));
     let zero = [0.0; LANES];

@@ -348,7 +348,7 @@ fn run_chunk_chain(
     let lanes = |k| vec![[0.0; LANES]; k];
     // A chain on a cart carries the cart's x and v after its angles and rates; a driven one, its
     // torques' work (for the lanes' layout; not reported).
-    let m = 2 * n + 2 * usize::from(chain.cart().is_some()) + usize::from(drive.is_some());
+    let m = chain.state_len() + usize::from(drive.is_some());
     let mut q = lanes(n);
     let mut trig = lanes(if pivot.is_some() { 2 * n } else { 0 });
     let mut s = ChainLanes {

@@ -48,7 +48,7 @@ impl<'c> Tangent<'c> {
     /// `y' = t (d' . d) / (d . d)` and `w' = 2 y / t`, so that `Y = 2 y / t` and `<Y> = w / t`.
     /// The ratio does not depend on the vector's length, which may be renormalised freely.
     fn megno_rates(&self, t: f64, y: &[f64], dy: &mut [f64]) {
-        let m = mechanical(self.chain);
+        let m = self.chain.state_len();
         let (v, dv) = (&y[m..2 * m], &dy[m..2 * m]);
         let ratio = dv.iter().zip(v).map(|(a, b)| a * b).sum::<f64>() / v.iter().map(|a| a * a).sum::<f64>();
         let at = m * (1 + self.k);
@@ -58,7 +58,7 @@ impl<'c> Tangent<'c> {
 
     /// The general model's rates and tangents, the base's drive evaluated at `t`.
     fn rhs_general(&mut self, t: f64, y: &[f64], dy: &mut [f64]) -> Result<()> {
-        let (n, m) = (self.chain.n(), mechanical(self.chain));
+        let (n, m) = (self.chain.n(), self.chain.state_len());
         let cart = m > 2 * n;
         let mut load = match self.drive.moving_pivot() {
             Some(p) => Load::pivot(self.chain, p.eval(t)?.acc),
@@ -94,14 +94,9 @@ impl<'c> Tangent<'c> {
     }
 }
 
-/// A chain's mechanical state's size: `2N`, and the cart's position and velocity.
-fn mechanical(chain: &Chain) -> usize {
-    2 * chain.n() + 2 * usize::from(chain.cart().is_some())
-}
-
 impl OdeSystem for Tangent<'_> {
     fn dim(&self) -> usize {
-        mechanical(self.chain) * (1 + self.k) + 2 * usize::from(self.megno)
+        self.chain.state_len() * (1 + self.k) + 2 * usize::from(self.megno)
     }
 
     fn rhs(&mut self, t: f64, y: &[f64], dy: &mut [f64]) -> Result<()> {
@@ -172,7 +167,7 @@ pub fn lyapunov(
     if !(dt.is_finite() && dt > 0.0 && dt <= t_end) {
         return Err(Error::input(format!("dt must be > 0, finite and <= t_end, got {dt}")));
     }
-    let m = mechanical(chain);
+    let m = chain.state_len();
     let k = k.unwrap_or(m);
     if k == 0 || k > m {
         let size = if m > 2 * n { format!("2N + 2 = {m} (the angles, their rates and the cart's)") } else { format!("2N = {m}") };

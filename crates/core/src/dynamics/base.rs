@@ -117,10 +117,10 @@ impl Axis {
 impl Axis {
     /// The acceleration at each lane's time `at`, for the SIMD lanes: a sinusoid's through the
     /// lanes' own `sin` (their round-off, as their dynamics'), a table's as [`Axis::eval`];
-    /// `None` for a function, which the lanes cannot call.
+    /// NaN for a function, which the lanes cannot call (never asked: [`Pivot::in_lanes`]).
     #[inline(always)]
-    pub fn acc_lanes(&self, at: &Lane) -> Option<Lane> {
-        Some(match self {
+    pub fn acc_lanes(&self, at: &Lane) -> Lane {
+        match self {
             Axis::Fixed(_) => [0.0; LANES],
             Axis::Sinusoid { amplitude, frequency, phase, .. } => {
                 let arg: Lane = std::array::from_fn(|i| frequency * at[i] + phase);
@@ -129,8 +129,8 @@ impl Axis {
                 sin.map(|s| k * s)
             }
             Axis::Spline { .. } => std::array::from_fn(|i| self.eval(at[i]).map_or(f64::NAN, |m| m[2])),
-            Axis::Function(_) => return None,
-        })
+            Axis::Function(_) => [f64::NAN; LANES],
+        }
     }
 }
 
@@ -170,12 +170,10 @@ impl Pivot {
         ![&self.x, &self.y].iter().any(|a| matches!(a, Axis::Function(_)))
     }
 
-    /// The acceleration `(a_x, a_y)` at each lane's time ([`Axis::acc_lanes`]); NaN where an
-    /// axis is a function (never asked of the lanes: [`Pivot::in_lanes`]).
+    /// The acceleration `(a_x, a_y)` at each lane's time ([`Axis::acc_lanes`]).
     #[inline(always)]
     pub fn acc_lanes(&self, at: &Lane) -> (Lane, Lane) {
-        let nan = [f64::NAN; LANES];
-        (self.x.acc_lanes(at).unwrap_or(nan), self.y.acc_lanes(at).unwrap_or(nan))
+        (self.x.acc_lanes(at), self.y.acc_lanes(at))
     }
 
     #[inline]

@@ -56,8 +56,7 @@ struct Group {
 /// Where a group's lanes keep what: the state row's length (`theta, omega`, a cart's `x, v`),
 /// and the losses' work lane if any.
 fn layout(chain: &Chain) -> (usize, Option<usize>) {
-    let n = chain.n();
-    let row = 2 * n + 2 * usize::from(chain.cart().is_some());
+    let row = chain.state_len();
     (row, (chain.cart().is_some() || chain.lossy_joints()).then_some(row))
 }
 

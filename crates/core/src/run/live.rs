@@ -293,7 +293,7 @@ impl Steppers {
     /// Values per copy in a state row ([`Steppers::report_into`]): `theta`, `omega`, then the
     /// cart's `x, v`.
     pub fn state_len(&self) -> usize {
-        2 * self.chain.n() + 2 * usize::from(self.chain.cart().is_some())
+        self.chain.state_len()
     }
 
     /// Start copy `i` anew at t = 0 from `(theta0, omega0)` and the cart's `(x, v)`: a new
