@@ -102,7 +102,12 @@ LONG_BATCH = textwrap.dedent("""
     "mp.ensemble(mp.Chain(np.ones(1000), np.ones(1000)), np.full((4000, 1000), 0.1), np.zeros((4000, 1000)), 10.0, "
     "method='rk4', dt=0.01)",
     "mp.flip_times(mp.Chain(np.ones(1000), np.ones(1000)), np.full((4000, 1000), 0.1), t_max=10.0)",
-], ids=["batch", "flip_times", "lyapunov", "ensemble_lanes", "flip_times_long_chain"])
+    # A pivot given as a Python function: per state, each step calling back into Python.
+    "mp.megno(mp.Chain([1, 1], [1, 1]), th[:2000, :2], np.zeros((2000, 2)), 1000.0, "
+    "pivot=mp.Pivot(x=lambda t: (0.0, 0.0, -np.sin(t))))",
+    "mp.flip_times(mp.Chain([1, 1], [1, 1]), 0.1 * th[:, :2], t_max=1e3, pivot=mp.Pivot(x=lambda t: (0.0, 0.0, -np.sin(t))))",
+], ids=["batch", "flip_times", "lyapunov", "ensemble_lanes", "flip_times_long_chain", "megno_pivot_function",
+        "flip_times_pivot_function"])
 def test_ctrl_c_stops_long_core_work_within_a_second(call):
     script = LONG_BATCH.replace("{B}", "20000").replace("{CALL}", call)
     # SIGINT as a terminal delivers it, even when these tests run where it is ignored (a shell's

@@ -184,7 +184,7 @@ fn check(chain: &Chain, t_end: f64, dt: f64, which: Indicator, deviations: Optio
     }
     if chain.cart().is_some() {
         return Err(Error::input(
-            "chaos indicators are computed for chains on a fixed pivot, not on a cart (the cart's position is a neutral direction)",
+            "chaos indicators are computed for chains on a pivot (fixed or moving), not on a cart (the cart's position is a neutral direction; mp.lyapunov takes a cart)",
         ));
     }
     if let Some(dev) = deviations {
@@ -280,6 +280,9 @@ pub fn indicators(
     let rows: Vec<Result<f64>> = (0..b)
         .into_par_iter()
         .map(|i| {
+            // A stopped batch skips its remaining rows at once (a row's run looks only every
+            // 64 steps, which with a pivot function take a while each).
+            watch.check(0.0)?;
             let r = run(chain, &theta0[i * n..(i + 1) * n], &omega0[i * n..(i + 1) * n], steps, dt, which, (torque, pivot), deviations, watch, false, &mut |_, _| {});
             watch.add_units(1);
             r
