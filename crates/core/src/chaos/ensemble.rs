@@ -259,7 +259,7 @@ fn rk4_rows(rows: &mut Rows, t_end: f64, dt: f64, watch: &Watch) -> Result<()> {
             let stepped = rk.step_system(&mut y, t, h, &active, &mut sys);
             let nonfinite = stepped.map_err(|(stage, bad)| {
                 let j = (0..LANES).find(|&j| bad.lanes[j]).unwrap_or(0);
-                rows.error(lo + j, t + [0.0, 0.5, 0.5, 1.0][stage] * h, &bad.link.reason())
+                rows.error(lo + j, t + [0.0, 0.5, 0.5, 1.0][stage] * h, &bad.reason(j))
             })?;
             if let Some(j) = (0..count).find(|&j| nonfinite[j]) {
                 return Err(rows.error(lo + j, t + h, NON_FINITE));
@@ -396,7 +396,7 @@ fn dop853_rows(rows: &mut Rows, t_end: f64, settings: &Settings, watch: &Watch) 
         if crossed.iter().any(|&c| c) {
             dp.dense(&mut sys, &t, &y, &y_new, &h_try, &crossed).map_err(|s| {
                 let j = (0..LANES).find(|&j| s.lanes[j]).unwrap_or(0);
-                rows.error(slot[j].unwrap_or(0), t[j], &s.link.reason())
+                rows.error(slot[j].unwrap_or(0), t[j], &s.reason(j))
             })?;
             for j in (0..LANES).filter(|&j| crossed[j]) {
                 trackers[j].locate(t[j], h_try[j], |x, out| {
@@ -517,7 +517,13 @@ mod tests {
         let e = ensemble(chain, &[0.1, 0.2, 0.3, f64::NAN], &[0.0; 4], 1.0, &rk4(0.01), None, Path::best(), &Watch::new()).unwrap_err();
         assert_eq!(e.to_string(), "trajectory 1: theta0[1] must be finite, got NaN");
         let e = ensemble(chain, &[0.1; 4], &[0.0, 0.0, 1e200, 0.0], 1.0, &rk4(0.01), None, Path::best(), &Watch::new()).unwrap_err();
-        assert!(matches!(e, Error::Integration { .. }) && e.to_string().contains("trajectory 1:"), "{e}");
+        // A blow-up is named as the per-trajectory route names it (not a singular mass matrix).
+        assert!(matches!(e, Error::Integration { .. }) && e.to_string().contains(&format!("trajectory 1: {NON_FINITE}")), "{e}");
+        let scalar = crate::run::simulate_batch(chain, &[0.1; 4], &[0.0, 0.0, 1e200, 0.0], 1.0, &rk4(0.01), &Builtin::None, &Watch::new()).unwrap_err();
+        assert!(scalar.to_string().contains(NON_FINITE), "{scalar}");
+        let dop = Settings { t_eval: Some(vec![1.0]), ..Settings::default() };
+        let e = ensemble(chain, &[0.1; 4], &[0.0, 0.0, 1e200, 0.0], 1.0, &dop, None, Path::best(), &Watch::new()).unwrap_err();
+        assert!(e.to_string().contains(NON_FINITE) || e.to_string().contains("underflowed"), "{e}");
         let e = ensemble(chain, &[0.1; 4], &[0.0; 4], 1.0, &rk4(-0.01), None, Path::best(), &Watch::new()).unwrap_err();
         assert_eq!(e.to_string(), "dt must be > 0 and finite, got -0.01");
     }

@@ -39,6 +39,29 @@ impl LaneScratch {
 pub struct LaneSingular {
     pub link: Singular,
     pub lanes: [bool; LANES],
+    /// The failed lanes whose state was not finite: a blow-up, not a singular configuration
+    /// (set by the integrators, which know the stage's state: [`LaneSingular::seen_in`]).
+    pub nonfinite: [bool; LANES],
+}
+
+impl LaneSingular {
+    /// Marks the failed lanes whose stage state `y` is not finite.
+    #[inline(always)]
+    pub fn seen_in(mut self, y: &[Lane]) -> Self {
+        for i in 0..LANES {
+            self.nonfinite[i] = self.lanes[i] && y.iter().any(|v| !v[i].is_finite());
+        }
+        self
+    }
+
+    /// Why lane `i` failed, as the scalar route says it ([`crate::dynamics::system::singular`]).
+    pub fn reason(&self, i: usize) -> String {
+        if self.nonfinite[i] {
+            crate::dynamics::system::NON_FINITE.to_string()
+        } else {
+            self.link.reason()
+        }
+    }
 }
 
 /// `theta_ddot` of every lane for generalized torques `tau`, into `out` (each `N` lanes). A lane
@@ -161,6 +184,7 @@ fn double(
         return Err(LaneSingular {
             link: Singular(0),
             lanes: bad,
+            nonfinite: [false; LANES],
         });
     }
     Ok(())
@@ -270,7 +294,7 @@ fn recursion(
     if first < 0.0 {
         return Ok(());
     }
-    Err(LaneSingular { link: Singular(first as usize), lanes: std::array::from_fn(|i| worst[i] >= 0.0) })
+    Err(LaneSingular { link: Singular(first as usize), lanes: std::array::from_fn(|i| worst[i] >= 0.0), nonfinite: [false; LANES] })
 }
 
 /// The tangent of [`accelerations`] along `(d_theta, d_omega)`: `d theta_ddot` of every lane into

@@ -230,7 +230,7 @@ impl Dop853Lanes {
             let (done, rest) = k.split_at_mut(s);
             combine(&A[s][..s], done, y, h, tmp);
             let at: Lane = std::array::from_fn(|i| t[i] + C[s] * h[i]);
-            sys.rates(&at, tmp, &mut rest[0], scratch, &active)?;
+            sys.rates(&at, tmp, &mut rest[0], scratch, &active).map_err(|s| s.seen_in(tmp))?;
         }
         for m in 0..*d {
             for i in (0..LANES).filter(|&i| lanes[i]) {

@@ -200,7 +200,7 @@ impl Rk4Lanes {
             {
                 let src: &[Lane] = if stage == 0 { &y[..] } else { &tmp[..] };
                 let at: Lane = std::array::from_fn(|i| [t[i], t[i] + half, t[i] + half, t[i] + dt][stage]);
-                sys.rates(&at, src, &mut k[stage], scratch, active).map_err(|s| (stage, s))?;
+                sys.rates(&at, src, &mut k[stage], scratch, active).map_err(|s| (stage, s.seen_in(src)))?;
             }
             if stage < 3 {
                 let h = if stage < 2 { half } else { dt };

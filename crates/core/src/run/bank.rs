@@ -390,7 +390,7 @@ fn run_group_body(
                         if bad.lanes[j] {
                             let t = (copies[j].steps + r) as f64 * dt
                                 + [0.0, 0.5, 0.5, 1.0][stage] * dt;
-                            fail(j, t, bad.link.reason(), &mut todo, r, copies);
+                            fail(j, t, bad.reason(j), &mut todo, r, copies);
                         }
                     }
                 }
