@@ -75,9 +75,14 @@ def cases():
             **k))))
         out.append((f"{method}/callable", lambda m=method, k=kw: _sol(mp.simulate(
             point, th, om, 1.0, method=m, torque=lambda t, a, b: [0.1 * np.sin(t), -0.05 * b[1]], **k))))
-        out.append((f"{method}/batch", lambda m=method, k=kw: _sol(mp.simulate(
+        batch = (lambda m=method, k=kw: _sol(mp.simulate(
             rods, np.random.default_rng(3).uniform(-3, 3, (16, 3)), np.zeros((16, 3)), 2.0, method=m,
-            t_eval=np.linspace(0, 2, 9), torque=sin if False else None, **k))))
+            t_eval=np.linspace(0, 2, 9), torque=sin if False else None, **k)))
+        # Trajectory by trajectory (the route recorded before the lanes took rk4 batches), and
+        # in whatever route the batch takes by default (rk4's: the SIMD lanes, issue 14).
+        out.append((f"{method}/batch", lambda b=batch: _with_env("MULTIPENDULUM_LANES", "scalar", b)))
+        if method == "rk4":
+            out.append((f"{method}/batch_lanes", batch))
         out.append((f"{method}/checkpoint+resume", lambda m=method, k=kw: _checkpointed(point, th, om, m, k)))
     # The general model's O(N) route with joint losses, a moving pivot and a cart (issue 13).
     lossy = mp.Chain.rods([1.0, 0.7, 0.5, 0.6], [1.0, 2.0, 0.5, 0.8], damping=[0.05, 0.02, 0.1, 0.0], friction=0.03)

@@ -22,12 +22,17 @@ CHAINS = {
 }
 
 
-def both_routes(monkeypatch, *args, **kwargs):
+def on_both_routes(monkeypatch, run, *args, **kwargs):
+    """``run(*args, **kwargs)`` in the lanes and on the per-trajectory route: (fast, slow)."""
     monkeypatch.setenv(SWITCH, "auto")
-    fast = mp.ensemble(*args, **kwargs)
+    fast = run(*args, **kwargs)
     monkeypatch.setenv(SWITCH, "scalar")
-    slow = mp.ensemble(*args, **kwargs)
+    slow = run(*args, **kwargs)
     return fast, slow
+
+
+def both_routes(monkeypatch, *args, **kwargs):
+    return on_both_routes(monkeypatch, mp.ensemble, *args, **kwargs)
 
 
 @pytest.mark.parametrize("key", list(CHAINS))
@@ -191,3 +196,53 @@ def test_a_blow_up_names_its_trajectory_on_both_routes(monkeypatch):
             if kwargs["method"] == "rk4":  # a blow-up, as the scalar route names it, on both routes
                 assert "the state became non-finite" in str(e.value), (route, str(e.value))
 
+
+
+SHAKEN = mp.Pivot(x=mp.Sinusoid(0.05, 20.0, 0.3), y=mp.Table([0.0, 0.2, 0.5, 1.0], [0.0, 0.03, -0.02, 0.01], kind="cubic"))
+
+
+@pytest.mark.parametrize("key", [2, 5, "2, damped with friction"])
+def test_lanes_on_a_moving_pivot_agree_with_the_per_trajectory_route(monkeypatch, key):
+    """The pivot's forces ride in the lanes, and its work in the energy balance, as the
+    per-trajectory route's: rk4 to round-off, dop853 to its tolerance."""
+    chain = CHAINS[key]
+    rng = np.random.default_rng(7)
+    th0, om0 = rng.uniform(-3.0, 3.0, (21, chain.n)), rng.uniform(-2, 2, (21, chain.n))
+    fast, slow = both_routes(monkeypatch, chain, th0, om0, 0.834, pivot=SHAKEN, method="rk4", dt=0.01)
+    for name in ("theta", "omega", "p"):  # rk4: round-off
+        a, b = getattr(fast, name), getattr(slow, name)
+        assert np.all(np.abs(a - b) <= 1e-12 * (1 + np.abs(b))), name
+    np.testing.assert_allclose(fast.energy_error, slow.energy_error, rtol=0, atol=1e-10)
+    np.testing.assert_array_equal(np.isfinite(fast.first_flip), np.isfinite(slow.first_flip))
+    # dop853, each route with its own steps: as near the exact motion as the other where the
+    # motion is regular (released at low energy; in this violent chaos either route's error
+    # swings tenfold with its steps), and at a tight tolerance on the violent rows too.
+    gentle = 0.4 * th0
+    monkeypatch.setenv(SWITCH, "scalar")
+    exact = mp.ensemble(chain, gentle, np.zeros_like(gentle), 0.834, pivot=SHAKEN, rtol=1e-13, atol=1e-15)
+    fast, slow = both_routes(monkeypatch, chain, gentle, np.zeros_like(gentle), 0.834, pivot=SHAKEN)
+    for name in ("theta", "omega", "p"):
+        a, b, e = getattr(fast, name), getattr(slow, name), getattr(exact, name)
+        assert np.abs(a - e).max() <= 10 * np.abs(b - e).max() + 1e-10, name
+    np.testing.assert_allclose(fast.energy_error, slow.energy_error, rtol=0, atol=1e-10)
+    monkeypatch.setenv(SWITCH, "scalar")
+    exact = mp.ensemble(chain, th0, om0, 0.834, pivot=SHAKEN, rtol=1e-13, atol=1e-15)
+    monkeypatch.setenv(SWITCH, "auto")
+    tight = mp.ensemble(chain, th0, om0, 0.834, pivot=SHAKEN, rtol=1e-13, atol=1e-15)
+    np.testing.assert_allclose(tight.theta, exact.theta, rtol=0, atol=1e-9)
+    # The pivot's work is in the balance: without it the error would be the work itself, joules.
+    sol = mp.simulate(chain, th0, om0, 0.834, pivot=SHAKEN, t_eval=[0.834])
+    assert np.abs(sol.work.pivot[:, -1]).max() > 0.1
+    assert fast.energy_error.max() < 1e-8
+
+
+def test_a_pivot_function_takes_the_per_trajectory_route_and_a_pivot_on_a_cart_is_refused(monkeypatch):
+    chain = CHAINS[2]
+    th0 = np.random.default_rng(3).uniform(-2, 2, (9, 2))
+    # x = 0.05 sin(20 t + 0.3), as a function: the same motion as SHAKEN's x axis.
+    function = mp.Pivot(x=lambda t: (0.05 * np.sin(20 * t + 0.3), np.cos(20 * t + 0.3), -20 * np.sin(20 * t + 0.3)))
+    by_function = mp.ensemble(chain, th0, np.zeros_like(th0), 0.5, method="rk4", dt=0.01, pivot=function)
+    built_in = mp.ensemble(chain, th0, np.zeros_like(th0), 0.5, method="rk4", dt=0.01, pivot=mp.Pivot(x=mp.Sinusoid(0.05, 20.0, 0.3)))
+    np.testing.assert_allclose(by_function.theta, built_in.theta, rtol=0, atol=1e-12)
+    with pytest.raises(mp.InputError, match="a chain on a cart has no prescribed pivot motion"):
+        mp.ensemble(CHAINS["2 on a free cart"], th0, np.zeros_like(th0), 0.5, method="rk4", dt=0.01, pivot=SHAKEN)

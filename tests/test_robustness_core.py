@@ -51,7 +51,9 @@ def test_every_report_of_the_energy_error_is_the_cores(monkeypatch):
     sol = mp.simulate(chain, [1.0, -0.5], [0.3, 0], 5.0, method="rk4", dt=0.01)
     assert sol.stats.energy_error == np.max(sol.energy_error)
     batch = mp.simulate(chain, [[1.0, -0.5], [0.2, 0.1]], [[0.3, 0], [0, 0]], 5.0, method="rk4", dt=0.01)
-    assert batch.stats.energy_error[0] == sol.stats.energy_error
+    assert np.array_equal(batch.stats.energy_error, np.max(batch.energy_error, axis=1))
+    # (An rk4 batch runs in SIMD lanes: its states differ from the single run's in the last bits.)
+    assert abs(batch.stats.energy_error[0] - sol.stats.energy_error) < 1e-9 * sol.stats.energy_error
     # An ensemble keeps the final state only: its error is that of a run with that one output.
     # (On the per-trajectory route bit for bit; in lanes, whose states differ in the last bits, to
     # round-off.)

@@ -455,16 +455,20 @@ class EnsembleResult:
 def ensemble(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: float, method: str = DEFAULTS["method"],
              dt: Optional[float] = None, rtol: float = DEFAULTS["rtol"], atol: float = DEFAULTS["atol"],
              torque: Optional[TorqueLike] = None,
-             joint_torque: Optional[TorqueLike] = None, progress: Progress = None) -> EnsembleResult:
+             joint_torque: Optional[TorqueLike] = None, progress: Progress = None, *,
+             pivot: Optional[Pivot] = None) -> EnsembleResult:
     """Run B trajectories (rows of ``theta0``, ``omega0``: (B, N)) in parallel in the Rust core
     and keep only their final states and per-trajectory reductions: memory O(B N), not
     O(B N steps). Results are identical whatever the number of threads. ``progress`` as for
     :func:`lyapunov`.
 
     Chains with damping, friction or a cart, undriven or driven by built-in torques (constant,
-    :class:`Sinusoid`, :class:`Table`; not a Python function), run by ``rk4`` or ``dop853``, go
-    through SIMD lanes (eight trajectories at a time, several times faster), each trajectory
-    with its own steps under ``dop853``; the energy error is the balance with the torques' work. They do not depend on the CPU's vector width or on the
+    :class:`Sinusoid`, :class:`Table`; not a Python function), on a fixed pivot or one moved by
+    ``pivot`` (:class:`Pivot` of sinusoids or tables; not on a cart), run by ``rk4`` or
+    ``dop853``, go through SIMD lanes (eight trajectories at a time, several times faster), each
+    trajectory with its own steps under ``dop853``; the energy error is the balance with the
+    work of the torques, the pivot and the losses. A pivot axis given as a Python function takes
+    the per-trajectory route. They do not depend on the CPU's vector width or on the
     other rows, and agree with the per-trajectory route (a batch :func:`simulate` with a
     non-terminal :class:`Flip` event): ``rk4`` to round-off; ``dop853`` to its tolerance, taking
     the same number of steps give or take one (its error estimate cancels to round-off, which
@@ -489,13 +493,15 @@ def ensemble(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: 
         with reporter(progress, "ensemble") as report:
             lanes = _core.ensemble(chain._c, th0.ravel(), om0.ravel(), t_end, method=method,
                                    dt=None if dt is None else as_float(dt, "dt"), rtol=as_float(rtol, "rtol"),
-                                   atol=as_float(atol, "atol"), torque=core_torque(spec, joint), progress=report)
+                                   atol=as_float(atol, "atol"), torque=core_torque(spec, joint),
+                                   pivot=core_pivot(normalise_pivot(pivot)), progress=report)
         if lanes is not None:
             theta, omega, p, error, steps, first = lanes
             return EnsembleResult(float(t_end), theta.reshape(th0.shape), omega.reshape(th0.shape), p.reshape(th0.shape),
                                   error, steps.astype(np.int64), first)
     sol = simulate(chain, th0, om0, t_end, method=method, dt=dt, rtol=rtol, atol=atol, torque=torque,
-                   joint_torque=joint_torque, t_eval=[t_end], events=[Flip(terminal=False)], progress=progress)
+                   joint_torque=joint_torque, t_eval=[t_end], events=[Flip(terminal=False)], progress=progress,
+                   pivot=pivot)
     first = np.array([rec[0].t[0] if rec[0].t.size else np.inf
                       for rec in cast("List[List[EventRecord]]", sol.events)])  # a batch: a list per trajectory
     return EnsembleResult(float(t_end), sol.theta[:, -1], sol.omega[:, -1], sol.p[:, -1],

@@ -238,11 +238,12 @@ type EnsembleOut<'py> = (
     Bound<'py, PyArray1<f64>>,
 );
 
-/// An undriven ensemble in SIMD lanes (`core::chaos::ensemble`): `(theta, omega, p, energy_error,
-/// steps, first_flip)` flat, or None where the core sends it the per-trajectory way (a method
-/// other than rk4 and dop853, a torque that is a Python function, or `MULTIPENDULUM_LANES=scalar`).
+/// An ensemble in SIMD lanes (`core::chaos::ensemble`): `(theta, omega, p, energy_error, steps,
+/// first_flip)` flat, or None where the core sends it the per-trajectory way (a method other than
+/// rk4 and dop853, a torque or a pivot axis that is a Python function, or
+/// `MULTIPENDULUM_LANES=scalar`).
 #[pyfunction]
-#[pyo3(signature = (chain, theta0, omega0, t_end, *, method, dt=None, rtol, atol, torque=None, progress=None))]
+#[pyo3(signature = (chain, theta0, omega0, t_end, *, method, dt=None, rtol, atol, torque=None, pivot=None, progress=None))]
 #[allow(clippy::too_many_arguments)]
 fn ensemble<'py>(
     py: Python<'py>,
@@ -255,6 +256,7 @@ fn ensemble<'py>(
     rtol: f64,
     atol: f64,
     torque: Option<PyRef<'py, PyTorque>>,
+    pivot: Option<(PyRef<'py, PyAxis>, PyRef<'py, PyAxis>)>,
     progress: Option<Py<PyAny>>,
 ) -> PyResult<Option<EnsembleOut<'py>>> {
     let c = &chain.inner;
@@ -265,7 +267,12 @@ fn ensemble<'py>(
     let Some(drive) = timed(py, c.n(), torque.as_deref())? else {
         return Ok(None);
     };
-    let settings = core::Settings { method, dt, rtol, atol, ..core::Settings::default() };
+    let pivot = crate::base::pivot(py, pivot, &Errors::default())?;
+    if pivot.as_ref().is_some_and(|p| !p.in_lanes()) {
+        return Ok(None);
+    }
+    let base = core::Drive { pivot, force: None };
+    let settings = core::Settings { method, dt, rtol, atol, drive: base, ..core::Settings::default() };
     let (theta0, omega0) = (slice("theta0", &theta0)?, slice("omega0", &omega0)?);
     let watch = Watch::units((theta0.len() / c.n().max(1)) as u64);
     let out = interruptible(py, &watch, progress.as_ref(), false, || {

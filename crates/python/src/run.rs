@@ -171,12 +171,14 @@ fn event_spec(py: Python<'_>, spec: &PyEventSpec, errors: &EventErrors) -> core:
 }
 
 /// Integrate B >= 1 initial states (rows of flat `theta0`, `omega0`). Built-in torques run
-/// without the GIL (a batch on all cores), interruptible by Ctrl-C; a Python torque function
-/// runs the rows in turn on this thread, holding it. `checkpoint`: `(every_steps, every_seconds,
+/// without the GIL (a batch on all cores, in SIMD lanes where it fits: `core::run::lanes`),
+/// interruptible by Ctrl-C; a Python torque function runs the rows in turn on this thread,
+/// holding it. `batch`: the rows run as a batch even when there is one (an input with a batch
+/// axis), so that a row's bits do not depend on the batch's size. `checkpoint`: `(every_steps, every_seconds,
 /// save)`, `save(state: bytes, t, steps)` called with the run's serialised state; `resume`: such
 /// bytes.
 #[pyfunction]
-#[pyo3(signature = (chain, theta0, omega0, t_end, *, method, rtol, atol, max_steps, form=None, dt=None, adaptive=true, t_eval=None, torque=None, progress=None, events=None, checkpoint=None, resume=None, pivot=None, cart_force=None, cart0=(0.0, 0.0), sensitivities=None))]
+#[pyo3(signature = (chain, theta0, omega0, t_end, *, method, rtol, atol, max_steps, form=None, dt=None, adaptive=true, t_eval=None, torque=None, progress=None, events=None, checkpoint=None, resume=None, pivot=None, cart_force=None, cart0=(0.0, 0.0), sensitivities=None, batch=false))]
 #[allow(clippy::too_many_arguments)]
 fn simulate<'py>(
     py: Python<'py>,
@@ -201,6 +203,7 @@ fn simulate<'py>(
     cart_force: Option<PyRef<'py, PyCartForce>>,
     cart0: (f64, f64),
     sensitivities: Option<Vec<String>>,
+    batch: bool,
 ) -> PyResult<Bound<'py, pyo3::types::PyDict>> {
     let c = &chain.inner;
     let n = c.n();
@@ -270,7 +273,7 @@ fn simulate<'py>(
     macro_rules! native {
         ($s:expr) => {{
             let s = $s;
-            if b > 1 {
+            if b > 1 || batch {
                 let watch = Watch::units(b as u64);
                 interruptible(py, &watch, progress, short, || core::simulate_batch(c, theta0, omega0, t_end, &settings, &s, &watch))?
                     .map(Trajectories)

@@ -30,7 +30,7 @@ use crate::dynamics::{Singular, PIVOT_TOL};
 use crate::error::{Error, Result};
 use crate::dynamics::base::Pivot;
 use crate::dynamics::torque::Timed;
-use crate::integrators::lanes::{ChainLanes as Equations, Rk4Lanes};
+use crate::integrators::lanes::{failed_at, ChainLanes as Equations, Rk4Lanes};
 use crate::model::Chain;
 use crate::par::*;
 use crate::dynamics::system::NON_FINITE;
@@ -373,13 +373,13 @@ fn run_chunk_chain(
         s.y0.copy_from_slice(&s.y);
         // Each lane at its own trajectory's time (for a drive).
         let t: Lane = std::array::from_fn(|i| s.step[i] as f64 * dt);
-        let mut sys = Equations { chain, tau: &s.tau, drive, force: &[0.0; LANES], pivot, q: &mut q, trig: &mut trig };
+        let mut sys = Equations { chain, tau: &s.tau, drive, force: &[0.0; LANES], pivot, pivot_work: false, q: &mut q, trig: &mut trig };
         let stepped = s.rk.step_system_at(&mut s.y, &t, dt, &s.active, &mut sys);
         let nonfinite = match stepped {
             Ok(nonfinite) => nonfinite,
             Err((stage, bad)) => {
                 let i = (0..LANES).find(|&i| bad.lanes[i]).unwrap_or(0);
-                let t = s.step[i] as f64 * dt + [0.0, 0.5, 0.5, 1.0][stage] * dt;
+                let t = failed_at(&bad, i, stage, s.step[i] as f64 * dt, dt);
                 return Err(Error::integration(t, bad.reason(i)));
             }
         };

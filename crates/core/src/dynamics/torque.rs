@@ -17,6 +17,11 @@ pub trait TorqueSource {
     }
     /// Write the torques at time `t` in state `(theta, omega)` into `out`.
     fn eval(&mut self, t: f64, theta: &[f64], omega: &[f64], out: &mut [f64]) -> Result<()>;
+    /// The same torques as the SIMD lanes take them (a built-in of time, [`Timed`]); `None` for
+    /// a source the lanes cannot evaluate (a function of Python, say).
+    fn timed(&self) -> Option<Timed> {
+        None
+    }
 }
 
 /// Interpolation between table samples.
@@ -106,6 +111,9 @@ fn natural_spline(t: &[f64], y: &[f64], n: usize) -> Vec<f64> {
 impl TorqueSource for Builtin {
     fn active(&self) -> bool {
         !matches!(self, Builtin::None)
+    }
+    fn timed(&self) -> Option<Timed> {
+        Some(Timed { builtin: self.clone(), joint: false })
     }
 
     fn eval(&mut self, t: f64, _theta: &[f64], _omega: &[f64], out: &mut [f64]) -> Result<()> {
@@ -226,6 +234,9 @@ impl TorqueSource for Timed {
     fn active(&self) -> bool {
         self.builtin.active()
     }
+    fn timed(&self) -> Option<Timed> {
+        Some(self.clone())
+    }
 
     fn eval(&mut self, t: f64, theta: &[f64], omega: &[f64], out: &mut [f64]) -> Result<()> {
         self.builtin.eval(t, theta, omega, out)?;
@@ -253,6 +264,9 @@ impl<T: TorqueSource> TorqueSource for Joint<T> {
         joint_to_generalized(out);
         Ok(())
     }
+    fn timed(&self) -> Option<Timed> {
+        self.0.timed().filter(|t| !t.joint).map(|t| Timed { joint: true, ..t })
+    }
 }
 
 impl<T: TorqueSource + ?Sized> TorqueSource for &mut T {
@@ -264,6 +278,9 @@ impl<T: TorqueSource + ?Sized> TorqueSource for &mut T {
     }
     fn eval(&mut self, t: f64, theta: &[f64], omega: &[f64], out: &mut [f64]) -> Result<()> {
         (**self).eval(t, theta, omega, out)
+    }
+    fn timed(&self) -> Option<Timed> {
+        (**self).timed()
     }
 }
 

@@ -26,9 +26,9 @@ pub trait LaneSystem {
 /// A chain's own equations in lanes under generalized torques `tau` held over the step, or
 /// `drive`'s torques of time at each stage's times instead: `y = [theta (N), omega (N)]`, then the
 /// cart's `[x, v]` under `force` (less its damping) on a chain with a cart, then the drive's work
-/// (`int tau . omega dt`) with a drive, then, if `y` has room for it, the work `W` of the joints'
-/// losses and the cart's damping (`W' = -P`, the power they take), which a lossy chain feels at
-/// every stage.
+/// (`int tau . omega dt`) with a drive, then the pivot's work with `pivot_work`, then, if `y` has
+/// room for it, the work `W` of the joints' losses and the cart's damping (`W' = -P`, the power
+/// they take), which a lossy chain feels at every stage.
 pub struct ChainLanes<'a> {
     pub chain: &'a Chain,
     pub tau: &'a [Lane],
@@ -39,6 +39,9 @@ pub struct ChainLanes<'a> {
     /// A moving pivot (one the lanes can evaluate: [`Pivot::in_lanes`]), its acceleration at
     /// each stage's times: the generalized forces `-h_a (a_x cos theta_a + a_y sin theta_a)`.
     pub pivot: Option<&'a Pivot>,
+    /// Whether `y` carries the work of the pivot's forces, `-int a_p . R_dot dt` (the run
+    /// driver's pivot slot, [`crate::dynamics::system::Layout::pivot_work`]), after the drive's.
+    pub pivot_work: bool,
     /// The generalized forces with the losses (`N` lanes of scratch).
     pub q: &'a mut [Lane],
     /// The angles' trig for a moving pivot (`2N` lanes of scratch; empty without one).
@@ -71,10 +74,13 @@ impl LaneSystem for ChainLanes<'_> {
             }
             None => self.q.copy_from_slice(self.tau),
         }
+        let mut pivot_power = None;
         if let Some(pivot) = self.pivot {
-            // (Its work is not tracked here: the flip times need none.)
             let (ax, ay) = pivot.acc_lanes(at);
             add_pivot_forces(chain, (&ax, &ay), theta, self.q, self.trig);
+            if self.pivot_work {
+                pivot_power = Some(pivot_power_of(chain, (&ax, &ay), omega, self.trig));
+            }
         }
         let mut power = [0.0; LANES];
         if lossy {
@@ -98,7 +104,7 @@ impl LaneSystem for ChainLanes<'_> {
                 slot += 2;
             }
         }
-        if let Some(p) = drive_power {
+        for p in [drive_power, pivot_power].into_iter().flatten() {
             dy[slot] = p;
             slot += 1;
         }
@@ -106,6 +112,35 @@ impl LaneSystem for ChainLanes<'_> {
             *work = power.map(|p| -p);
         }
         Ok(())
+    }
+}
+
+/// The power of a moving pivot's forces, `-a_p . R_dot` with `R_dot = sum_a h_a omega_a (cos,
+/// sin)(theta_a)` (the driver's pivot slot's rate), from the angles' `trig` that
+/// [`add_pivot_forces`] left.
+#[inline(always)]
+fn pivot_power_of(chain: &Chain, (ax, ay): (&Lane, &Lane), omega: &[Lane], trig: &[Lane]) -> Lane {
+    let n = omega.len();
+    let (mut rx, mut ry) = ([0.0; LANES], [0.0; LANES]);
+    for a in 0..n {
+        let (sin, cos, h) = (trig[a], trig[n + a], chain.h[a]);
+        for i in 0..LANES {
+            let hw = h * omega[a][i];
+            rx[i] += hw * cos[i];
+            ry[i] += hw * sin[i];
+        }
+    }
+    std::array::from_fn(|i| -ax[i].mul_add(rx[i], ay[i] * ry[i]))
+}
+
+/// When rk4's `stage` of lane `i` failed in the step of size `h` from `t`, as the scalar route
+/// reports it: a blow-up (a non-finite stage state) at the step's end, where the driver's check
+/// of the new state finds it; a singular configuration at the stage's own time.
+pub fn failed_at(bad: &LaneSingular, i: usize, stage: usize, t: f64, h: f64) -> f64 {
+    if bad.nonfinite[i] {
+        t + h
+    } else {
+        t + [0.0, 0.5, 0.5, 1.0][stage] * h
     }
 }
 
@@ -165,7 +200,7 @@ impl Rk4Lanes {
     ) -> std::result::Result<[bool; LANES], (usize, LaneSingular)> {
         let mut q = std::mem::take(&mut self.q);
         // The chain's equations do not depend on time: the steps' times are immaterial.
-        let out = self.step_system(y, 0.0, dt, active, &mut ChainLanes { chain, tau, drive: None, force, pivot: None, q: &mut q, trig: &mut [] });
+        let out = self.step_system(y, 0.0, dt, active, &mut ChainLanes { chain, tau, drive: None, force, pivot: None, pivot_work: false, q: &mut q, trig: &mut [] });
         self.q = q;
         out
     }

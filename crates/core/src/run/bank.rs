@@ -13,7 +13,7 @@ use super::simulate::Settings;
 use crate::dynamics::lanes::energies_on;
 use crate::dynamics::system::NON_FINITE;
 use crate::error::{Error, Result};
-use crate::integrators::lanes::Rk4Lanes;
+use crate::integrators::lanes::{failed_at, Rk4Lanes};
 use crate::model::Chain;
 use crate::par::*;
 use crate::trig::lanes::{Lane, Path, LANES};
@@ -388,8 +388,7 @@ fn run_group_body(
                 Err((stage, bad)) => {
                     for j in 0..copies.len() {
                         if bad.lanes[j] {
-                            let t = (copies[j].steps + r) as f64 * dt
-                                + [0.0, 0.5, 0.5, 1.0][stage] * dt;
+                            let t = failed_at(&bad, j, stage, (copies[j].steps + r) as f64 * dt, dt);
                             fail(j, t, bad.reason(j), &mut todo, r, copies);
                         }
                     }

@@ -5,6 +5,7 @@ pub mod bank;
 pub mod driver;
 pub mod energy;
 pub mod events;
+pub mod lanes;
 pub mod live;
 pub mod sensitivity;
 pub mod simulate;

@@ -283,7 +283,7 @@ fn check_pace(settings: &Settings, attempts: u64, t: f64, t_end: f64, every_step
 
 /// Output rows of the raw ODE state `y`.
 #[derive(Debug, Clone, Default)]
-struct Recorder {
+pub(crate) struct Recorder {
     t: Vec<f64>,
     y: Vec<f64>,
     /// How many of `t_eval` the rows cover.
@@ -300,7 +300,7 @@ impl Recorder {
         Ok(())
     }
 
-    fn push(&mut self, t: f64, y: &[f64]) {
+    pub(crate) fn push(&mut self, t: f64, y: &[f64]) {
         self.t.push(t);
         self.y.extend_from_slice(y);
     }
@@ -712,7 +712,7 @@ pub(crate) fn fill_rates(chain: &Chain, form: Form, y: &[f64], omega: &mut [f64]
 
 /// Turn raw ODE states into theta, omega, p, energy, work and energy-error rows.
 #[allow(clippy::too_many_arguments)]
-fn finish(
+pub(crate) fn finish(
     chain: &Chain,
     form: Form,
     layout: Layout,
@@ -913,6 +913,12 @@ pub fn simulate_batch<T: TorqueSource + Clone + Send + Sync>(
     let rows = settings.validate(t_end)?;
     check_output_size(rows as f64 * b as f64, n, output_row_bytes(chain, settings))?;
     check_fixed_steps(settings, t_end)?;
+    let timed = torque.timed();
+    if let Some(path) = super::lanes::route(settings, timed.as_ref())? {
+        if let Some(drive) = &timed {
+            return super::lanes::simulate(chain, theta0, omega0, t_end, settings, drive, path, watch);
+        }
+    }
     (0..b)
         .into_par_iter()
         .map(|i| {

@@ -1,0 +1,423 @@
+//! A batch [`super::simulate_batch`] of rk4 in SIMD lanes: eight trajectories of one chain at a
+//! time ([`Rk4Lanes`] on [`ChainLanes`]), each with every output the per-trajectory route gives
+//! (the same rows, momenta, energies, work and energy errors: the rows go through the same
+//! [`super::simulate::finish`]). Taken for a chain on a fixed or moving pivot (a sinusoid or a
+//! table on each axis) or on a cart (damping and friction included), undriven or under a
+//! built-in torque, on rk4's Lagrangian form without events or sensitivities; anything else runs
+//! trajectory by trajectory.
+//!
+//! The steps are the run driver's: the grid `t_k = k dt`, each step of `t_{k+1} - t_k`, the
+//! last one landing on `t_end`; an output time within 1e-9 of a step of a grid point is that
+//! point's state, any other the step's cubic Hermite interpolant (its slopes evaluated as the
+//! driver's, and counted alike). A trajectory agrees with its per-trajectory run to round-off
+//! (the lanes' own `sin`/`cos` and fused product-sums); its bits depend neither on the other
+//! trajectories nor on the number of threads, and are the same on the AVX-512, AVX2 and portable
+//! paths.
+use super::driver::fixed_steps;
+use super::simulate::{finish, Recorder, Settings, Stats, Trajectory};
+use crate::dynamics::lanes::LaneScratch;
+use crate::dynamics::system::{check_finite_state, ChainSystem, Form, Layout, NON_FINITE};
+use crate::dynamics::base::{Drive, Pivot};
+use crate::dynamics::torque::{Builtin, Timed};
+use crate::error::{Error, Result};
+use crate::integrators::lanes::{failed_at, ChainLanes, LaneSystem, Rk4Lanes};
+use crate::integrators::Method;
+use crate::interp::hermite;
+use crate::model::Chain;
+use crate::par::*;
+use crate::trig::lanes::{Lane, Path, LANES};
+use crate::watch::Watch;
+
+/// Whether a batch with `settings` and the torque `drive` (`None`: one the lanes cannot
+/// evaluate) runs in lanes, and on which path: rk4, Lagrangian, a pivot fixed or moving as the
+/// lanes can evaluate it (no axis a function), no cart force, no events and no sensitivities,
+/// unless `MULTIPENDULUM_LANES` asks for the per-trajectory route.
+pub fn route(settings: &Settings, drive: Option<&Timed>) -> Result<Option<Path>> {
+    let fits = drive.is_some()
+        && settings.method == Method::Rk4
+        && matches!(settings.resolved_form(), Ok(Form::Lagrangian))
+        && settings.drive.pivot.as_ref().map_or(true, Pivot::in_lanes)
+        && settings.drive.force.is_none()
+        && settings.events.is_empty()
+        && settings.sensitivities.is_empty();
+    if !fits {
+        return Ok(None);
+    }
+    super::bank::requested()
+}
+
+/// The batch of the rows of `theta0`, `omega0` (flat, `(B, N)`, checked by the caller as a batch
+/// run checks them, but for each row's values) to `t_end` in lanes on `path` (see [`route`]).
+/// Each finished trajectory counts a unit of `watch`; a stopped watch stops every group within
+/// a step.
+#[allow(clippy::too_many_arguments)]
+pub fn simulate(chain: &Chain, theta0: &[f64], omega0: &[f64], t_end: f64, settings: &Settings, drive: &Timed, path: Path, watch: &Watch) -> Result<Vec<Trajectory>> {
+    let n = chain.n();
+    for (i, (th, om)) in theta0.chunks(n).zip(omega0.chunks(n)).enumerate() {
+        chain.check_state("theta0", th).and_then(|_| chain.check_state("omega0", om)).map_err(|e| match e {
+            Error::Input(m) => Error::Input(format!("trajectory {i}: {m}")),
+            other => other,
+        })?;
+    }
+    super::simulate::check_cart0(chain, settings)?;
+    let layout = layout(chain, drive, &settings.drive)?;
+    let drive = Some(drive).filter(|d| !matches!(d.builtin, Builtin::None));
+    let groups: Vec<Vec<Trajectory>> = theta0
+        .par_chunks(n * LANES)
+        .zip(omega0.par_chunks(n * LANES))
+        .enumerate()
+        .map(|(g, (th, om))| {
+            watch.check(0.0)?;
+            let pivot = settings.drive.moving_pivot();
+            let out = group_on(path, &Group { chain, layout, th, om, first: g * LANES, drive, pivot, settings, t_end }, watch)?;
+            watch.add_units(out.len() as u64);
+            Ok(out)
+        })
+        .collect::<Result<_>>()?;
+    Ok(groups.into_iter().flatten().collect())
+}
+
+/// The per-trajectory run's layout of its raw state under the torque `drive` and the base's
+/// `motion`: the lanes keep theirs alike ([`ChainLanes`]' work slots come in its order), so
+/// that a lane is a raw state ([`raw_row`]).
+pub(crate) fn layout(chain: &Chain, drive: &Timed, motion: &Drive) -> Result<Layout> {
+    Ok(ChainSystem::new(chain, drive.clone(), Form::Lagrangian).with_drive(motion.clone())?.layout())
+}
+
+/// Lane `j` of `y` as the run driver's raw state: the losses' slot holds the energy dissipated,
+/// `D`, where the lanes integrate its work, `-D`.
+#[inline]
+pub(crate) fn raw_row(layout: Layout, y: &[Lane], j: usize, row: &mut [f64]) {
+    let losses = layout.dissipated();
+    for (m, v) in row.iter_mut().enumerate() {
+        *v = if Some(m) == losses { -y[m][j] } else { y[m][j] };
+    }
+}
+
+/// Up to eight rows and what they run with.
+struct Group<'a> {
+    chain: &'a Chain,
+    layout: Layout,
+    th: &'a [f64],
+    om: &'a [f64],
+    /// The batch index of the first row (for messages).
+    first: usize,
+    drive: Option<&'a Timed>,
+    pivot: Option<&'a Pivot>,
+    settings: &'a Settings,
+    t_end: f64,
+}
+
+fn group_on(path: Path, g: &Group, watch: &Watch) -> Result<Vec<Trajectory>> {
+    match path {
+        // SAFETY: the path was checked available when chosen (`bank::requested`).
+        #[cfg(target_arch = "x86_64")]
+        Path::Avx512 => unsafe { group_avx512(g, watch) },
+        #[cfg(target_arch = "x86_64")]
+        Path::Avx2 => unsafe { group_avx2(g, watch) },
+        _ => run_group(g, watch),
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,fma")]
+unsafe fn group_avx512(g: &Group, watch: &Watch) -> Result<Vec<Trajectory>> {
+    run_group(g, watch)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn group_avx2(g: &Group, watch: &Watch) -> Result<Vec<Trajectory>> {
+    run_group(g, watch)
+}
+
+/// No force on a cart (a batch in lanes has none).
+const NO_FORCE: Lane = [0.0; LANES];
+
+/// The group's equations in lanes, with the per-trajectory run's work slots; `zero` the held
+/// torques (none: a drive's torques of time ride along instead), `q` and `trig` scratch
+/// (`N` and, with a pivot, `2N` lanes).
+#[inline(always)]
+fn equations<'a>(g: &'a Group, zero: &'a [Lane], q: &'a mut [Lane], trig: &'a mut [Lane]) -> ChainLanes<'a> {
+    ChainLanes { chain: g.chain, tau: zero, drive: g.drive, force: &NO_FORCE, pivot: g.pivot, pivot_work: g.layout.pivot, q, trig }
+}
+
+#[inline(always)]
+fn run_group(g: &Group, watch: &Watch) -> Result<Vec<Trajectory>> {
+    let (chain, layout, settings, t_end) = (g.chain, g.layout, g.settings, g.t_end);
+    let n = chain.n();
+    let count = g.th.len() / n;
+    let d = layout.dim();
+    let lanes = |k| vec![[0.0; LANES]; k];
+    let (mut y, mut y0, mut f0, mut f1, mut q, zero) = (lanes(d), lanes(d), lanes(d), lanes(d), lanes(n), lanes(n));
+    let mut trig = lanes(if g.pivot.is_some() { 2 * n } else { 0 });
+    let mut scratch = LaneScratch::new(n);
+    let mut rk = Rk4Lanes::with_dim(n, d);
+    let mut active = [0.0; LANES];
+    let mut initial = vec![vec![0.0; d]; count];
+    for (j, start) in initial.iter_mut().enumerate() {
+        start[..n].copy_from_slice(&g.th[n * j..n * (j + 1)]);
+        start[n..2 * n].copy_from_slice(&g.om[n * j..n * (j + 1)]);
+        if let Some(c) = layout.cart() {
+            start[c..c + 2].copy_from_slice(&settings.cart0);
+        }
+        for (m, v) in start.iter().enumerate() {
+            y[m][j] = *v;
+        }
+        active[j] = 1.0;
+    }
+    let error = |j: usize, t: f64, reason: &str| Error::integration(t, format!("trajectory {}: {reason}", g.first + j));
+    // A row of every lane into its recorder: the driver's raw state (the losses' slot holds the
+    // energy dissipated, D; the lanes integrate their work, -D).
+    let mut recs: Vec<Recorder> = (0..count).map(|_| Recorder::default()).collect();
+    let record = |recs: &mut [Recorder], t: f64, y: &[Lane], checked: bool| -> Result<()> {
+        let mut row = vec![0.0; d];
+        for (j, rec) in recs.iter_mut().enumerate() {
+            raw_row(layout, y, j, &mut row);
+            if checked {
+                check_finite_state(t, &row).map_err(|_| error(j, t, NON_FINITE))?;
+            }
+            rec.push(t, &row);
+        }
+        Ok(())
+    };
+    let t_eval = settings.t_eval.as_deref();
+    let dt = settings.dt.unwrap_or(f64::NAN);
+    let steps = fixed_steps(t_end, dt);
+    let grid = |k: u64| if k == steps { t_end } else { k as f64 * dt };
+    if t_eval.is_none() {
+        record(&mut recs, 0.0, &y, false)?;
+    }
+    let (mut next, mut evaluations) = (0, 0u64);
+    // Whether the slope at the current state is known (the last step's end slope, kept).
+    let mut end_known = false;
+    let snap = 1e-9;
+    let mut out = lanes(d);
+    for k in 0..steps {
+        let (t, t1) = (grid(k), grid(k + 1));
+        let h = t1 - t;
+        // Every step: a relaxed load against eight rows' step.
+        watch.check(t)?;
+        if let Some(te) = t_eval {
+            while next < te.len() && te[next] <= t + snap * h {
+                record(&mut recs, te[next], &y, false)?;
+                next += 1;
+            }
+        }
+        y0.copy_from_slice(&y);
+        let nonfinite = rk.step_system(&mut y, t, h, &active, &mut equations(g, &zero, &mut q, &mut trig)).map_err(|(stage, bad)| {
+            let j = (0..LANES).find(|&j| bad.lanes[j]).unwrap_or(0);
+            error(j, failed_at(&bad, j, stage, t, h), &bad.reason(j))
+        })?;
+        if let Some(j) = (0..count).find(|&j| nonfinite[j]) {
+            return Err(error(j, t1, NON_FINITE));
+        }
+        evaluations += 4;
+        // The start slope is the last step's end slope when that was evaluated.
+        let start_known = std::mem::take(&mut end_known);
+        if start_known {
+            std::mem::swap(&mut f0, &mut f1);
+        }
+        if let Some(te) = t_eval {
+            let edge = t1 - snap * h;
+            if next < te.len() && te[next] < edge {
+                let failed = |t: f64| move |s: crate::dynamics::lanes::LaneSingular| {
+                    let j = (0..LANES).find(|&j| s.lanes[j]).unwrap_or(0);
+                    error(j, t, &s.reason(j))
+                };
+                let mut slope = |t: f64, y: &[Lane], dy: &mut [Lane]| {
+                    equations(g, &zero, &mut q, &mut trig).rates(&[t; LANES], y, dy, &mut scratch, &active).map_err(|s| failed(t)(s.seen_in(y)))
+                };
+                if !start_known {
+                    slope(t, &y0, &mut f0)?;
+                    evaluations += 1;
+                }
+                slope(t1, &y, &mut f1)?;
+                evaluations += 1;
+                end_known = true;
+                while next < te.len() && te[next] < edge {
+                    let x = (te[next] - t) / h;
+                    for j in 0..count {
+                        let lane = |v: &[Lane]| v.iter().map(|l| l[j]).collect::<Vec<f64>>();
+                        let mut row = vec![0.0; d];
+                        hermite(&lane(&y0), &lane(&f0), &lane(&y), &lane(&f1), h, x, &mut row);
+                        for (m, v) in row.iter().enumerate() {
+                            out[m][j] = *v;
+                        }
+                    }
+                    record(&mut recs, te[next], &out, true)?;
+                    next += 1;
+                }
+            }
+        } else {
+            record(&mut recs, t1, &y, false)?;
+        }
+    }
+    if let Some(te) = t_eval {
+        while next < te.len() {
+            record(&mut recs, te[next], &y, false)?;
+            next += 1;
+        }
+    }
+    let stats = Stats { steps, rejected: 0, evaluations, iterations: 0, energy_error: 0.0 };
+    recs.into_iter()
+        .zip(initial)
+        .map(|(rec, start)| finish(chain, Form::Lagrangian, layout, &settings.drive, &start, rec, Vec::new(), stats.clone()))
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::chaos::ensemble::tests::{chains, rows};
+
+    fn rk4(dt: f64, t_eval: Option<Vec<f64>>) -> Settings {
+        Settings { method: Method::Rk4, dt: Some(dt), t_eval, ..Settings::default() }
+    }
+
+    /// The per-trajectory route: each row's own run.
+    fn each(chain: &Chain, th: &[f64], om: &[f64], t_end: f64, settings: &Settings, drive: &Timed) -> Vec<Trajectory> {
+        let n = chain.n();
+        th.chunks(n).zip(om.chunks(n)).map(|(a, b)| super::super::simulate(chain, a, b, t_end, settings, drive.clone(), &mut |_| Ok(())).unwrap()).collect()
+    }
+
+    fn close(what: &str, got: &[f64], want: &[f64], tol: f64) {
+        assert_eq!(got.len(), want.len(), "{what}");
+        for (k, (x, y)) in got.iter().zip(want).enumerate() {
+            assert!((x - y).abs() <= tol * (1.0 + y.abs()), "{what}[{k}]: {x} vs {y}");
+        }
+    }
+
+    #[test]
+    fn a_batch_in_lanes_gives_every_output_of_the_per_trajectory_route() {
+        let undriven = Timed { builtin: Builtin::None, joint: false };
+        let sinusoid = Timed { builtin: Builtin::sinusoid(2, vec![1.5, -0.7], vec![3.0, 5.5], vec![0.1, 0.0], vec![0.2, 0.0]).unwrap(), joint: false };
+        let table = Timed { builtin: Builtin::table(3, vec![0.0, 0.3, 0.9], vec![0.0, 1.0, -2.0, 1.0, 0.5, 0.0, 2.0, -1.0, 0.3], crate::Interp::Cubic).unwrap(), joint: true };
+        let (t_end, dt) = (0.834, 0.01); // the last step is shortened
+        // Output at every step, on the grid (snapped) and between grid points (interpolated,
+        // some steps with several outputs, some with none).
+        let outputs = [None, Some((0..=8).map(|k| 0.1 * k as f64).collect()), Some(vec![0.0, 0.013, 0.0171, 0.02, 0.3333, 0.5, 0.75, 0.8, t_end])];
+        let chains = chains();
+        for (c, chain) in chains.iter().enumerate() {
+            let n = chain.n();
+            let drive = match (c, n) {
+                (0 | 3 | 5, 2) => &sinusoid,
+                (1 | 6, 3) => &table,
+                _ => &undriven,
+            };
+            let (th, om) = rows(n, 11);
+            for t_eval in outputs.clone() {
+                let mut settings = rk4(dt, t_eval);
+                if chain.cart().is_some() {
+                    settings.cart0 = [0.3, -0.2];
+                }
+                assert!(route(&settings, Some(drive)).unwrap().is_some() || std::env::var(super::super::bank::SWITCH).as_deref() == Ok("scalar"));
+                let got = simulate(chain, &th, &om, t_end, &settings, drive, Path::best(), &Watch::new()).unwrap();
+                let want = each(chain, &th, &om, t_end, &settings, drive);
+                for (i, (g, w)) in got.iter().zip(&want).enumerate() {
+                    let what = |f: &str| format!("chain {c}, row {i}, {f}");
+                    assert_eq!(g.t, w.t, "{}", what("t"));
+                    assert_eq!((g.stats.steps, g.stats.evaluations, g.stats.rejected), (w.stats.steps, w.stats.evaluations, w.stats.rejected), "{}", what("stats"));
+                    // Round-off grown by the chaotic rows over 83 steps.
+                    let tol = 1e-11;
+                    close(&what("theta"), &g.theta, &w.theta, tol);
+                    close(&what("omega"), &g.omega, &w.omega, tol);
+                    close(&what("p"), &g.p, &w.p, tol);
+                    close(&what("energy"), &g.energy, &w.energy, tol);
+                    close(&what("work"), &g.work, &w.work, tol);
+                    close(&what("dissipated"), &g.dissipated, &w.dissipated, tol);
+                    close(&what("cart_x"), &g.cart_x, &w.cart_x, tol);
+                    close(&what("cart_v"), &g.cart_v, &w.cart_v, tol);
+                    close(&what("energy_error"), &g.energy_error, &w.energy_error, 1e-12);
+                    assert_eq!((g.work_pivot.len(), g.work_cart.len(), g.pivot.len()), (0, 0, 0));
+                }
+                if matches!(drive.builtin, Builtin::None) {
+                    continue;
+                }
+                // The drive did work, and the balance with it closes as the scalar route's.
+                assert!(got.iter().all(|g| g.work.iter().any(|w| w.abs() > 1e-2)), "chain {c}");
+            }
+        }
+    }
+
+    #[test]
+    fn a_batch_on_a_moving_pivot_in_lanes_gives_the_per_trajectory_routes_work_and_pivot() {
+        use crate::dynamics::base::{Axis, Drive, Pivot};
+        let shaken = Pivot { x: Axis::sinusoid("x", 0.05, 20.0, 0.3, 0.1).unwrap(), y: Axis::spline("y", vec![0.0, 0.2, 0.5, 1.0], vec![0.0, 0.03, -0.02, 0.01]).unwrap() };
+        let held = Pivot { x: Axis::Fixed(0.2), y: Axis::Fixed(-0.1) }; // fixed, off the origin
+        let drive = Timed { builtin: Builtin::sinusoid(2, vec![1.5, -0.7], vec![3.0, 5.5], vec![0.1, 0.0], vec![0.2, 0.0]).unwrap(), joint: false };
+        let chains = chains();
+        for (c, pivot) in [(0, &shaken), (3, &shaken), (1, &held), (4, &shaken)] {
+            let chain = &chains[c];
+            let n = chain.n();
+            let (th, om) = rows(n, 13);
+            let torque = if n == 2 { drive.clone() } else { Timed { builtin: Builtin::None, joint: false } };
+            let settings = Settings { drive: Drive { pivot: Some(pivot.clone()), force: None }, ..rk4(0.01, Some(vec![0.0, 0.0171, 0.3, 0.5, 0.834])) };
+            assert!(route(&settings, Some(&torque)).unwrap().is_some() || std::env::var(super::super::bank::SWITCH).as_deref() == Ok("scalar"));
+            let got = simulate(chain, &th, &om, 0.834, &settings, &torque, Path::best(), &Watch::new()).unwrap();
+            let want = each(chain, &th, &om, 0.834, &settings, &torque);
+            for (i, (g, w)) in got.iter().zip(&want).enumerate() {
+                let what = |f: &str| format!("chain {c}, row {i}, {f}");
+                assert_eq!(g.pivot, w.pivot, "{}", what("pivot"));
+                assert_eq!(g.stats.evaluations, w.stats.evaluations);
+                close(&what("theta"), &g.theta, &w.theta, 1e-11);
+                close(&what("energy"), &g.energy, &w.energy, 1e-11);
+                close(&what("work_pivot"), &g.work_pivot, &w.work_pivot, 1e-11);
+                close(&what("energy_error"), &g.energy_error, &w.energy_error, 1e-12);
+                if std::ptr::eq(pivot, &shaken) {
+                    assert!(w.work_pivot.iter().any(|x| x.abs() > 1e-3), "{}: the pivot did work", what("work_pivot"));
+                }
+            }
+        }
+        // A pivot given as a function stays per trajectory.
+        struct Still;
+        impl crate::dynamics::base::AxisFn for Still {
+            fn eval(&self, _t: f64) -> Result<[f64; 3]> {
+                Ok([0.0; 3])
+            }
+        }
+        let function = Pivot { x: Axis::Function(std::sync::Arc::new(Still)), y: Axis::Fixed(0.0) };
+        let settings = Settings { drive: Drive { pivot: Some(function), force: None }, ..rk4(0.01, None) };
+        assert!(route(&settings, Some(&drive)).unwrap().is_none());
+    }
+
+    #[test]
+    fn every_path_gives_the_same_bits_and_a_row_its_own_whatever_its_neighbours() {
+        let chains = chains();
+        let drive = Timed { builtin: Builtin::Constant(vec![0.3, -0.2, 0.1]), joint: true };
+        let chain = &chains[6]; // rods on a damped cart, with joint losses
+        let (th, om) = rows(3, 29);
+        let settings = rk4(0.01, Some(vec![0.05, 0.5, 1.0]));
+        let reference = simulate(chain, &th, &om, 1.0, &settings, &drive, Path::Portable, &Watch::new()).unwrap();
+        for path in Path::ALL.into_iter().filter(|p| p.available()) {
+            assert_eq!(simulate(chain, &th, &om, 1.0, &settings, &drive, path, &Watch::new()).unwrap(), reference, "{path:?}");
+        }
+        let one = simulate(chain, &th[3 * 21..3 * 22], &om[3 * 21..3 * 22], 1.0, &settings, &drive, Path::best(), &Watch::new()).unwrap();
+        assert_eq!(one[0], reference[21]);
+    }
+
+    #[test]
+    fn bad_rows_and_blow_ups_name_their_trajectory_as_the_per_trajectory_route() {
+        let chain = &chains()[0];
+        let none = Timed { builtin: Builtin::None, joint: false };
+        let settings = rk4(0.01, None);
+        let e = simulate(chain, &[0.1, 0.2, 0.3, f64::NAN], &[0.0; 4], 1.0, &settings, &none, Path::best(), &Watch::new()).unwrap_err();
+        assert_eq!(e.to_string(), "trajectory 1: theta0[1] must be finite, got NaN");
+        let th = [0.1; 20];
+        let mut om = [0.0; 20];
+        om[2 * 9] = 1e200; // row 9: the second group's second row
+        let e = simulate(chain, &th, &om, 1.0, &settings, &none, Path::best(), &Watch::new()).unwrap_err();
+        let want = super::super::simulate(chain, &th[18..], &om[18..], 1.0, &settings, none.clone(), &mut |_| Ok(())).unwrap_err();
+        match (&e, &want) {
+            (Error::Integration { t, reason }, Error::Integration { t: t0, reason: r0 }) => {
+                assert_eq!((*t, reason.as_str()), (*t0, format!("trajectory 9: {r0}").as_str()));
+                assert!(r0.contains(NON_FINITE));
+            }
+            _ => panic!("{e} / {want}"),
+        }
+        // A stopped watch stops the batch.
+        let watch = Watch::new();
+        watch.stop();
+        assert!(matches!(simulate(chain, &[0.1; 4], &[0.0; 4], 1.0, &settings, &none, Path::best(), &watch), Err(Error::Interrupted { .. })));
+    }
+}
