@@ -79,9 +79,9 @@ def cases():
             rods, np.random.default_rng(3).uniform(-3, 3, (16, 3)), np.zeros((16, 3)), 2.0, method=m,
             t_eval=np.linspace(0, 2, 9), torque=sin if False else None, **k)))
         # Trajectory by trajectory (the route recorded before the lanes took rk4 batches), and
-        # in whatever route the batch takes by default (rk4's: the SIMD lanes, issue 14).
+        # in whatever route the batch takes by default (rk4's and dop853's: the SIMD lanes, issue 14).
         out.append((f"{method}/batch", lambda b=batch: _with_env("MULTIPENDULUM_LANES", "scalar", b)))
-        if method == "rk4":
+        if method in ("rk4", "dop853"):
             out.append((f"{method}/batch_lanes", batch))
         out.append((f"{method}/checkpoint+resume", lambda m=method, k=kw: _checkpointed(point, th, om, m, k)))
     # The general model's O(N) route with joint losses, a moving pivot and a cart (issue 13).

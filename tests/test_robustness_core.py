@@ -98,6 +98,8 @@ LONG_BATCH = textwrap.dedent("""
 
 @pytest.mark.parametrize("call", [
     "mp.simulate(chain, th, np.zeros_like(th), 200.0, method='rk4', dt=0.001, t_eval=[200.0])",
+    # dop853 in lanes, each lane refilled as its trajectory ends.
+    "mp.simulate(chain, th, np.zeros_like(th), 1e5, t_eval=[1e5])",
     "mp.flip_times(mp.Chain([1, 1], [1, 1]), th[:, :2], t_max=1e4)",
     "mp.lyapunov(chain, th[0], np.zeros(3), t_end=1e6)",
     # In lanes, on a long chain: a group of eight takes seconds (the check was per 1024 steps).
@@ -108,7 +110,7 @@ LONG_BATCH = textwrap.dedent("""
     "mp.megno(mp.Chain([1, 1], [1, 1]), th[:2000, :2], np.zeros((2000, 2)), 1000.0, "
     "pivot=mp.Pivot(x=lambda t: (0.0, 0.0, -np.sin(t))))",
     "mp.flip_times(mp.Chain([1, 1], [1, 1]), 0.1 * th[:, :2], t_max=1e3, pivot=mp.Pivot(x=lambda t: (0.0, 0.0, -np.sin(t))))",
-], ids=["batch", "flip_times", "lyapunov", "ensemble_lanes", "flip_times_long_chain", "megno_pivot_function",
+], ids=["batch", "batch_dop853", "flip_times", "lyapunov", "ensemble_lanes", "flip_times_long_chain", "megno_pivot_function",
         "flip_times_pivot_function"])
 def test_ctrl_c_stops_long_core_work_within_a_second(call):
     script = LONG_BATCH.replace("{B}", "20000").replace("{CALL}", call)

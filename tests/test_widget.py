@@ -307,7 +307,8 @@ def test_show_refuses_a_batch_and_other_objects():
     # The package's one refusal of batches (results.check_single), said for show.
     assert str(info.value) == (
         "show takes one run, but this Solution is a batch of 2 runs (theta shape (2, 2, 1)); pick one trajectory b "
-        "by simulating it alone, mp.simulate(chain, theta0[b], omega0[b], ...), which gives the batch's row b bit for bit")
+        "by simulating it alone, mp.simulate(chain, theta0[b], omega0[b], ...), which gives the batch's row b (to "
+        "round-off, or to dop853's tolerance, where the batch ran in SIMD lanes)")
     with pytest.raises(mp.InputError) as info:
         mp.show([1, 2, 3])
     assert str(info.value) == "show takes a multipendulum Solution or loaded Results, got list"

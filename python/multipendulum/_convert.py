@@ -73,6 +73,7 @@ def check_single(sol: Any, what: str) -> None:
         raise InputError(
             f"{what} takes one run, but this Solution is a batch of {shape[0]} runs (theta shape {shape}); "
             f"pick one trajectory b by simulating it alone, mp.simulate(chain, theta0[b], omega0[b], ...), "
-            "which gives the batch's row b bit for bit")
+            "which gives the batch's row b (to round-off, or to dop853's tolerance, where the batch ran in "
+            "SIMD lanes)")
     if len(shape) != 2:
         raise InputError(f"{what} takes one run with theta of shape (T, N), got shape {shape}")

@@ -366,13 +366,13 @@ def simulate(chain: Chain, theta0: npt.ArrayLike, omega0: npt.ArrayLike, t_end: 
     ``t_eval`` falls on the step grid and cubic Hermite interpolation elsewhere.
 
     A leading batch axis on ``theta0``/``omega0`` (B, N) runs the B trajectories in parallel on
-    all cores (GIL released); a Python torque function runs them one after another. An rk4
-    batch (Lagrangian form; a pivot fixed, or moving by sinusoids or tables, or a cart without a
-    cart force; no events or sensitivities; damping, friction and built-in torques included)
-    runs in SIMD lanes, eight
-    trajectories at a time: several times faster, in agreement with the trajectories' own runs
-    to round-off, and a trajectory's bits depend neither on the batch it is in nor on the number
-    of threads. ``MULTIPENDULUM_LANES=scalar`` runs such a batch trajectory by trajectory.
+    all cores (GIL released); a Python torque function runs them one after another. An rk4 or
+    dop853 batch (Lagrangian form; a pivot fixed, or moving by sinusoids or tables, or a cart
+    without a cart force; no events or sensitivities; damping, friction and built-in torques
+    included) runs in SIMD lanes, eight trajectories at a time, several times faster: rk4 in
+    agreement with the trajectories' own runs to round-off, dop853 (each trajectory with its own
+    steps) to its tolerance; a trajectory's bits depend neither on the batch it is in nor on the
+    number of threads. ``MULTIPENDULUM_LANES=scalar`` runs such a batch trajectory by trajectory.
     ``progress``: True for a bar on stderr (tqdm's when installed), or a callable given the
     fraction done about ten times a second (:mod:`multipendulum._progress`). Ctrl-C stops any
     run within a fraction of a second (``KeyboardInterrupt``; a checkpointed run writes a last

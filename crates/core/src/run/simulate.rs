@@ -892,8 +892,10 @@ pub fn simulate_each<T: TorqueSource>(
 }
 
 /// Run a batch of initial states in parallel (rayon; one after another without the `parallel`
-/// feature); results in input order, each identical to its single run whatever the number of
-/// threads. Rows of `theta0`/`omega0` are states. Each finished trajectory counts a unit of
+/// feature); results in input order, whatever the number of threads. Where the lanes take the
+/// batch ([`super::lanes::route`]: rk4 or dop853 with a built-in torque, no events...), in SIMD
+/// lanes, each row agreeing with its single run to round-off (rk4) or to the tolerance
+/// (dop853); else each row is its single run, bit for bit. Rows of `theta0`/`omega0` are states. Each finished trajectory counts a unit of
 /// `watch`; once it is stopped the running trajectories stop within `MONITOR_EVERY` steps.
 pub fn simulate_batch<T: TorqueSource + Clone + Send + Sync>(
     chain: &Chain,
