@@ -28,13 +28,13 @@ use crate::dynamics::system::{Form, Layout};
 use crate::dynamics::torque::{Builtin, Timed};
 use crate::integrators::dop853_lanes::{mask, Dop853Lanes, StartFailure};
 use crate::integrators::lanes::{failed_at, ChainLanes, Rk4Lanes};
-use crate::integrators::{Controller, Decision, Method};
+use crate::integrators::Method;
 use crate::model::Chain;
 use crate::par::*;
-use crate::run::driver::{fixed_steps, max_steps_reached, min_step, UNDERFLOW};
+use crate::run::driver::fixed_steps;
 use crate::run::events::{Condition, EventSpec, Tracker};
 use crate::run::energy::EnergyBalance;
-use crate::run::lanes::raw_row;
+use crate::run::lanes::{raw_row, LaneControl};
 use crate::run::simulate::Books;
 use crate::run::Settings;
 use crate::trig::lanes::{Lane, Path, LANES};
@@ -320,8 +320,8 @@ fn dop853_rows(rows: &mut Rows, t_end: f64, settings: &Settings, watch: &Watch) 
     let mut trackers: Vec<Tracker> = (0..LANES).map(|_| tracker()).collect();
     // Per lane: its row, time, next step, and the driver's counters.
     let mut slot: [Option<usize>; LANES] = [None; LANES];
-    let (mut t, mut h) = ([0.0; LANES], [0.0; LANES]);
-    let (mut steps, mut rejected, mut after_rejection, mut found) = ([0u64; LANES], [0u64; LANES], [false; LANES], [false; LANES]);
+    let mut ctl = LaneControl::default();
+    let mut found = [false; LANES];
     let mut next = 0;
     let mut state = vec![0.0; m];
     let lane = |y: &[Lane], j: usize, out: &mut [f64]| {
@@ -335,7 +335,8 @@ fn dop853_rows(rows: &mut Rows, t_end: f64, settings: &Settings, watch: &Watch) 
             if slot[j].is_none() && next < count {
                 rows.load(next, &mut y, j);
                 (slot[j], fresh[j], next) = (Some(next), true, next + 1);
-                (t[j], steps[j], rejected[j], after_rejection[j], found[j]) = (0.0, 0, 0, false, false);
+                ctl.restart(j, 0.0);
+                found[j] = false;
                 trackers[j] = tracker();
                 lane(&y, j, &mut state);
                 trackers[j].start(0.0, &state)?;
@@ -343,7 +344,7 @@ fn dop853_rows(rows: &mut Rows, t_end: f64, settings: &Settings, watch: &Watch) 
         }
         let mut sys = ChainLanes { chain, tau: &tau, drive: rows.drive, force: &zero, pivot, pivot_work: pivot.is_some(), q: &mut q, trig: &mut trig };
         if fresh.iter().any(|&f| f) {
-            let first = dp.start(&mut sys, &t, &y, &fresh, &[t_end; LANES], settings.dt).map_err(|(j, why)| {
+            let first = dp.start(&mut sys, &ctl.t, &y, &fresh, &[t_end; LANES], settings.dt).map_err(|(j, why)| {
                 let r = slot[j].unwrap_or(0);
                 match why {
                     StartFailure::Singular(link) => rows.error(r, 0.0, &link.reason()),
@@ -351,7 +352,7 @@ fn dop853_rows(rows: &mut Rows, t_end: f64, settings: &Settings, watch: &Watch) 
                 }
             })?;
             for j in (0..LANES).filter(|&j| fresh[j]) {
-                h[j] = first[j];
+                ctl.h[j] = first[j];
             }
         }
         let running = slot.map(|s| s.is_some());
@@ -359,44 +360,13 @@ fn dop853_rows(rows: &mut Rows, t_end: f64, settings: &Settings, watch: &Watch) 
             return Ok(());
         }
         // Every step: a relaxed load against eight lanes' step.
-        watch.check((0..LANES).filter(|&j| running[j]).map(|j| t[j]).fold(f64::INFINITY, f64::min))?;
-        let (mut last, mut h_try) = ([false; LANES], [0.0; LANES]);
+        watch.check(ctl.earliest(&running))?;
         for j in (0..LANES).filter(|&j| running[j]) {
-            let r = slot[j].unwrap_or(0);
-            if steps[j] + rejected[j] >= settings.max_steps {
-                return Err(rows.error(r, t[j], &max_steps_reached(settings.max_steps)));
-            }
-            if h[j] < min_step(t[j]) {
-                return Err(rows.error(r, t[j], UNDERFLOW));
-            }
-            last[j] = t[j] + h[j] >= t_end;
-            h_try[j] = if last[j] { t_end - t[j] } else { h[j] };
+            ctl.propose(j, t_end, settings.max_steps).map_err(|why| rows.error(slot[j].unwrap_or(0), ctl.t[j], &why))?;
         }
-        let active = mask(&running);
-        let err = dp.trial(&mut sys, &t, &y, &h_try, &mut y_new, &active);
-        let (mut accepted, mut t_new) = ([false; LANES], t);
-        for j in (0..LANES).filter(|&j| running[j]) {
-            match Controller::DOP853.decide(err[j], h_try[j], after_rejection[j]) {
-                Decision::Reject { h_next } => {
-                    rejected[j] += 1;
-                    after_rejection[j] = true;
-                    h[j] = h_next;
-                }
-                Decision::Accept { h_next } => {
-                    if !y_new.iter().all(|v| v[j].is_finite()) {
-                        return Err(rows.error(slot[j].unwrap_or(0), t[j] + h_try[j], NON_FINITE));
-                    }
-                    // A step shortened to land on the end keeps the proposal it was cut from.
-                    if !last[j] {
-                        h[j] = h_next;
-                    }
-                    after_rejection[j] = false;
-                    accepted[j] = true;
-                    steps[j] += 1;
-                    t_new[j] = if last[j] { t_end } else { t[j] + h_try[j] };
-                }
-            }
-        }
+        let (t, h_try) = (ctl.t, ctl.h_try);
+        let err = dp.trial(&mut sys, &t, &y, &h_try, &mut y_new, &mask(&running));
+        let (accepted, t_new) = ctl.decide(&err, &running, &y_new, t_end).map_err(|j| rows.error(slot[j].unwrap_or(0), t[j] + h_try[j], NON_FINITE))?;
         // The rows' first flips: a crossing in the step is located on its interpolant.
         let mut crossed = [false; LANES];
         for j in (0..LANES).filter(|&j| accepted[j] && !found[j]) {
@@ -422,15 +392,10 @@ fn dop853_rows(rows: &mut Rows, t_end: f64, settings: &Settings, watch: &Watch) 
             }
         }
         dp.accept(&accepted);
-        for (yv, nv) in y.iter_mut().zip(&y_new) {
-            for i in 0..LANES {
-                yv[i] = if accepted[i] { nv[i] } else { yv[i] };
-            }
-        }
-        t = t_new;
-        for j in (0..LANES).filter(|&j| accepted[j] && last[j]) {
+        ctl.advance(&mut y, &y_new, &accepted, t_new);
+        for j in (0..LANES).filter(|&j| accepted[j] && ctl.last[j]) {
             if let Some(r) = slot[j].take() {
-                rows.finish(r, &y, j, t_end, steps[j])?;
+                rows.finish(r, &y, j, t_end, ctl.steps[j])?;
             }
         }
     }

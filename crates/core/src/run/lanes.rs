@@ -119,6 +119,23 @@ struct Group<'a> {
     t_end: f64,
 }
 
+impl Group<'_> {
+    /// Row `r`'s initial raw state into `start` and lane `j` of `y`: its angles and rates, the
+    /// cart's `cart0`, no work yet.
+    fn load(&self, r: usize, start: &mut [f64], y: &mut [Lane], j: usize) {
+        let n = self.chain.n();
+        start.fill(0.0);
+        start[..n].copy_from_slice(&self.th[n * r..n * (r + 1)]);
+        start[n..2 * n].copy_from_slice(&self.om[n * r..n * (r + 1)]);
+        if let Some(c) = self.layout.cart() {
+            start[c..c + 2].copy_from_slice(&self.settings.cart0);
+        }
+        for (m, v) in start.iter().enumerate() {
+            y[m][j] = *v;
+        }
+    }
+}
+
 fn group_on(path: Path, g: &Group, watch: &Watch) -> Result<Vec<Trajectory>> {
     match path {
         // SAFETY: the path was checked available when chosen (`bank::requested`).
@@ -170,14 +187,7 @@ fn run_group(g: &Group, watch: &Watch) -> Result<Vec<Trajectory>> {
     let mut active = [0.0; LANES];
     let mut initial = vec![vec![0.0; d]; count];
     for (j, start) in initial.iter_mut().enumerate() {
-        start[..n].copy_from_slice(&g.th[n * j..n * (j + 1)]);
-        start[n..2 * n].copy_from_slice(&g.om[n * j..n * (j + 1)]);
-        if let Some(c) = layout.cart() {
-            start[c..c + 2].copy_from_slice(&settings.cart0);
-        }
-        for (m, v) in start.iter().enumerate() {
-            y[m][j] = *v;
-        }
+        g.load(j, start, &mut y, j);
         active[j] = 1.0;
     }
     let error = |j: usize, t: f64, reason: &str| Error::integration(t, format!("trajectory {}: {reason}", g.first + j));
@@ -280,6 +290,88 @@ fn run_group(g: &Group, watch: &Watch) -> Result<Vec<Trajectory>> {
         .collect()
 }
 
+/// The run driver's step control of dop853 in eight lanes: each lane's time, next step and
+/// counters under the driver's rules (`max_steps`, an underflowed step, the last step cut to
+/// land on `t_end`, keeping the proposal it was cut from). Shared by the batch runs and the
+/// ensembles in lanes.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct LaneControl {
+    pub t: Lane,
+    /// The next step to try.
+    pub h: Lane,
+    pub steps: [u64; LANES],
+    pub rejected: [u64; LANES],
+    after_rejection: [bool; LANES],
+    /// The trial's: whether it lands on `t_end`, and its size.
+    pub last: [bool; LANES],
+    pub h_try: Lane,
+}
+
+impl LaneControl {
+    /// Lane `j` starts a new row at t = 0 with the first step `h`.
+    pub fn restart(&mut self, j: usize, h: f64) {
+        (self.t[j], self.h[j], self.steps[j], self.rejected[j], self.after_rejection[j]) = (0.0, h, 0, 0, false);
+    }
+
+    /// Lane `j`'s next trial towards `t_end`; `Err(reason)` when it may not take one.
+    pub fn propose(&mut self, j: usize, t_end: f64, max_steps: u64) -> std::result::Result<(), String> {
+        if self.steps[j] + self.rejected[j] >= max_steps {
+            return Err(max_steps_reached(max_steps));
+        }
+        if self.h[j] < min_step(self.t[j]) {
+            return Err(UNDERFLOW.to_string());
+        }
+        self.last[j] = self.t[j] + self.h[j] >= t_end;
+        self.h_try[j] = if self.last[j] { t_end - self.t[j] } else { self.h[j] };
+        Ok(())
+    }
+
+    /// The controller's decisions on the `running` lanes' trials (error norms `err`, new states
+    /// `y_new`): the accepted lanes and the times they reach; `Err(j)` when lane `j`'s accepted
+    /// state is not finite.
+    pub fn decide(&mut self, err: &Lane, running: &[bool; LANES], y_new: &[Lane], t_end: f64) -> std::result::Result<([bool; LANES], Lane), usize> {
+        let (mut accepted, mut t_new) = ([false; LANES], self.t);
+        for j in (0..LANES).filter(|&j| running[j]) {
+            match Controller::DOP853.decide(err[j], self.h_try[j], self.after_rejection[j]) {
+                Decision::Reject { h_next } => {
+                    self.rejected[j] += 1;
+                    self.after_rejection[j] = true;
+                    self.h[j] = h_next;
+                }
+                Decision::Accept { h_next } => {
+                    if !y_new.iter().all(|v| v[j].is_finite()) {
+                        return Err(j);
+                    }
+                    // A step shortened to land on the end keeps the proposal it was cut from.
+                    if !self.last[j] {
+                        self.h[j] = h_next;
+                    }
+                    self.after_rejection[j] = false;
+                    accepted[j] = true;
+                    self.steps[j] += 1;
+                    t_new[j] = if self.last[j] { t_end } else { self.t[j] + self.h_try[j] };
+                }
+            }
+        }
+        Ok((accepted, t_new))
+    }
+
+    /// The `accepted` lanes move to their new states and times (after their interpolants are used).
+    pub fn advance(&mut self, y: &mut [Lane], y_new: &[Lane], accepted: &[bool; LANES], t_new: Lane) {
+        for (yv, nv) in y.iter_mut().zip(y_new) {
+            for i in 0..LANES {
+                yv[i] = if accepted[i] { nv[i] } else { yv[i] };
+            }
+        }
+        self.t = t_new;
+    }
+
+    /// The earliest time of the `running` lanes.
+    pub fn earliest(&self, running: &[bool; LANES]) -> f64 {
+        (0..LANES).filter(|&j| running[j]).map(|j| self.t[j]).fold(f64::INFINITY, f64::min)
+    }
+}
+
 /// dop853 with a step per lane, as the run driver's controlled steps (its first step,
 /// controller, `max_steps`, landing on `t_end`), each row's outputs at `t_eval` from its state
 /// or its step's 7th-order interpolant as the driver takes them; a lane whose row is done takes
@@ -299,36 +391,27 @@ fn dop853_rows(g: &Group, watch: &Watch) -> Result<Vec<Trajectory>> {
     let error = |r: usize, t: f64, reason: &str| Error::integration(t, format!("trajectory {}: {reason}", g.first + r));
     let mut done: Vec<Option<Trajectory>> = (0..count).map(|_| None).collect();
     let mut recs: Vec<Recorder> = (0..LANES).map(|_| Recorder::default()).collect();
-    // Per lane: its row, time, next step, output index and the driver's counters.
+    // Per lane: its row, its step control, output index and evaluations.
     let mut slot: [Option<usize>; LANES] = [None; LANES];
-    let (mut t, mut h) = ([0.0; LANES], [0.0; LANES]);
-    let (mut steps, mut rejected, mut evaluations) = ([0u64; LANES], [0u64; LANES], [0u64; LANES]);
-    let (mut after_rejection, mut next_out) = ([false; LANES], [0usize; LANES]);
+    let mut ctl = LaneControl::default();
+    let (mut evaluations, mut next_out) = ([0u64; LANES], [0usize; LANES]);
     let (mut row, mut initial) = (vec![0.0; d], vec![vec![0.0; d]; LANES]);
     let mut next = 0;
     loop {
         let mut fresh = [false; LANES];
         for j in 0..LANES {
             if slot[j].is_none() && next < count {
-                let start = &mut initial[j];
-                start.fill(0.0);
-                start[..n].copy_from_slice(&g.th[n * next..n * (next + 1)]);
-                start[n..2 * n].copy_from_slice(&g.om[n * next..n * (next + 1)]);
-                if let Some(c) = layout.cart() {
-                    start[c..c + 2].copy_from_slice(&settings.cart0);
-                }
-                for (m, v) in start.iter().enumerate() {
-                    y[m][j] = *v;
-                }
+                g.load(next, &mut initial[j], &mut y, j);
                 (slot[j], fresh[j], next) = (Some(next), true, next + 1);
-                (t[j], steps[j], rejected[j], after_rejection[j], next_out[j]) = (0.0, 0, 0, false, 0);
+                ctl.restart(j, 0.0);
+                next_out[j] = 0;
                 evaluations[j] = if settings.dt.is_some() { 1 } else { 2 };
                 recs[j] = Recorder::default();
             }
         }
         let mut sys = equations(g, &zero, &mut q, &mut trig);
         if fresh.iter().any(|&f| f) {
-            let first = dp.start(&mut sys, &t, &y, &fresh, &[t_end; LANES], settings.dt).map_err(|(j, why)| {
+            let first = dp.start(&mut sys, &ctl.t, &y, &fresh, &[t_end; LANES], settings.dt).map_err(|(j, why)| {
                 let r = slot[j].unwrap_or(0);
                 match why {
                     StartFailure::Singular(link) => error(r, 0.0, &link.reason()),
@@ -336,7 +419,7 @@ fn dop853_rows(g: &Group, watch: &Watch) -> Result<Vec<Trajectory>> {
                 }
             })?;
             for j in (0..LANES).filter(|&j| fresh[j]) {
-                h[j] = first[j];
+                ctl.h[j] = first[j];
             }
         }
         let running = slot.map(|s| s.is_some());
@@ -344,50 +427,20 @@ fn dop853_rows(g: &Group, watch: &Watch) -> Result<Vec<Trajectory>> {
             break;
         }
         // Every step: a relaxed load against eight lanes' step.
-        watch.check((0..LANES).filter(|&j| running[j]).map(|j| t[j]).fold(f64::INFINITY, f64::min))?;
-        let (mut last, mut h_try) = ([false; LANES], [0.0; LANES]);
+        watch.check(ctl.earliest(&running))?;
         for j in (0..LANES).filter(|&j| running[j]) {
-            let r = slot[j].unwrap_or(0);
             // Output times at the state the step starts from, as the driver takes them.
-            while next_out[j] < te.len() && te[next_out[j]] <= t[j] {
+            while next_out[j] < te.len() && te[next_out[j]] <= ctl.t[j] {
                 raw_row(layout, &y, j, &mut row);
                 recs[j].push(te[next_out[j]], &row);
                 next_out[j] += 1;
             }
-            if steps[j] + rejected[j] >= settings.max_steps {
-                return Err(error(r, t[j], &max_steps_reached(settings.max_steps)));
-            }
-            if h[j] < min_step(t[j]) {
-                return Err(error(r, t[j], UNDERFLOW));
-            }
-            last[j] = t[j] + h[j] >= t_end;
-            h_try[j] = if last[j] { t_end - t[j] } else { h[j] };
+            ctl.propose(j, t_end, settings.max_steps).map_err(|why| error(slot[j].unwrap_or(0), ctl.t[j], &why))?;
             evaluations[j] += 12;
         }
+        let (t, h_try) = (ctl.t, ctl.h_try);
         let err = dp.trial(&mut sys, &t, &y, &h_try, &mut y_new, &mask(&running));
-        let (mut accepted, mut t_new) = ([false; LANES], t);
-        for j in (0..LANES).filter(|&j| running[j]) {
-            match Controller::DOP853.decide(err[j], h_try[j], after_rejection[j]) {
-                Decision::Reject { h_next } => {
-                    rejected[j] += 1;
-                    after_rejection[j] = true;
-                    h[j] = h_next;
-                }
-                Decision::Accept { h_next } => {
-                    if !y_new.iter().all(|v| v[j].is_finite()) {
-                        return Err(error(slot[j].unwrap_or(0), t[j] + h_try[j], NON_FINITE));
-                    }
-                    // A step shortened to land on the end keeps the proposal it was cut from.
-                    if !last[j] {
-                        h[j] = h_next;
-                    }
-                    after_rejection[j] = false;
-                    accepted[j] = true;
-                    steps[j] += 1;
-                    t_new[j] = if last[j] { t_end } else { t[j] + h_try[j] };
-                }
-            }
-        }
+        let (accepted, t_new) = ctl.decide(&err, &running, &y_new, t_end).map_err(|j| error(slot[j].unwrap_or(0), t[j] + h_try[j], NON_FINITE))?;
         // Output times inside an accepted step: from its interpolant.
         let inside: [bool; LANES] = std::array::from_fn(|j| accepted[j] && next_out[j] < te.len() && te[next_out[j]] < t_new[j]);
         if inside.iter().any(|&b| b) {
@@ -413,20 +466,15 @@ fn dop853_rows(g: &Group, watch: &Watch) -> Result<Vec<Trajectory>> {
             }
         }
         dp.accept(&accepted);
-        for (yv, nv) in y.iter_mut().zip(&y_new) {
-            for i in 0..LANES {
-                yv[i] = if accepted[i] { nv[i] } else { yv[i] };
-            }
-        }
-        t = t_new;
-        for j in (0..LANES).filter(|&j| accepted[j] && last[j]) {
+        ctl.advance(&mut y, &y_new, &accepted, t_new);
+        for j in (0..LANES).filter(|&j| accepted[j] && ctl.last[j]) {
             let Some(r) = slot[j].take() else { continue };
             raw_row(layout, &y, j, &mut row);
             while next_out[j] < te.len() {
                 recs[j].push(te[next_out[j]], &row);
                 next_out[j] += 1;
             }
-            let stats = Stats { steps: steps[j], rejected: rejected[j], evaluations: evaluations[j], iterations: 0, energy_error: 0.0 };
+            let stats = Stats { steps: ctl.steps[j], rejected: ctl.rejected[j], evaluations: evaluations[j], iterations: 0, energy_error: 0.0 };
             let rec = std::mem::take(&mut recs[j]);
             done[r] = Some(finish(chain, Form::Lagrangian, layout, &settings.drive, &initial[j], rec, Vec::new(), stats)?);
         }
