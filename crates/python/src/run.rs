@@ -174,9 +174,9 @@ fn event_spec(py: Python<'_>, spec: &PyEventSpec, errors: &EventErrors) -> core:
 /// without the GIL (a batch on all cores, in SIMD lanes where it fits: `core::run::lanes`),
 /// interruptible by Ctrl-C; a Python torque function runs the rows in turn on this thread,
 /// holding it. `batch`: the rows run as a batch even when there is one (an input with a batch
-/// axis), so that a row's bits do not depend on the batch's size. `checkpoint`: `(every_steps, every_seconds,
-/// save)`, `save(state: bytes, t, steps)` called with the run's serialised state; `resume`: such
-/// bytes.
+/// axis), so that a row's bits do not depend on the batch's size. `checkpoint`:
+/// `(every_steps, every_seconds, save)`, `save(state: bytes, t, steps)` called with the run's
+/// serialised state; `resume`: such bytes.
 #[pyfunction]
 #[pyo3(signature = (chain, theta0, omega0, t_end, *, method, rtol, atol, max_steps, form=None, dt=None, adaptive=true, t_eval=None, torque=None, progress=None, events=None, checkpoint=None, resume=None, pivot=None, cart_force=None, cart0=(0.0, 0.0), sensitivities=None, batch=false))]
 #[allow(clippy::too_many_arguments)]

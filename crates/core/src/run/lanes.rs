@@ -34,9 +34,10 @@ use crate::trig::lanes::{Lane, Path, LANES};
 use crate::watch::Watch;
 
 /// Whether a batch with `settings` and the torque `drive` (`None`: one the lanes cannot
-/// evaluate) runs in lanes, and on which path: rk4, Lagrangian, a pivot fixed or moving as the
-/// lanes can evaluate it (no axis a function), no cart force, no events and no sensitivities,
-/// unless `MULTIPENDULUM_LANES` asks for the per-trajectory route.
+/// evaluate) runs in lanes, and on which path: rk4, or adaptive dop853 with `t_eval`, in the
+/// Lagrangian form; a pivot fixed or moving as the lanes can evaluate it (no axis a function),
+/// no cart force, no events and no sensitivities; unless `MULTIPENDULUM_LANES` asks for the
+/// per-trajectory route.
 pub fn route(settings: &Settings, drive: Option<&Timed>) -> Result<Option<Path>> {
     let fits = drive.is_some()
         && (settings.method == Method::Rk4 || (settings.method == Method::Dop853 && settings.adaptive && settings.t_eval.is_some()))
