@@ -238,7 +238,6 @@ fn rk4_rows(rows: &mut Rows, t_end: f64, dt: f64, watch: &Watch) -> Result<()> {
     let m = rows.layout.dim();
     let pivot = rows.base.moving_pivot();
     let (mut y, mut y0, tau, mut q) = (lanes(m), lanes(m), lanes(n), lanes(n));
-    let mut trig = lanes(if pivot.is_some() { 2 * n } else { 0 });
     let mut rk = Rk4Lanes::with_dim(n, m);
     let steps = fixed_steps(t_end, dt);
     for g in 0..count_all.div_ceil(LANES) {
@@ -266,7 +265,7 @@ fn rk4_rows(rows: &mut Rows, t_end: f64, dt: f64, watch: &Watch) -> Result<()> {
             let t = k as f64 * dt;
             let h = if k + 1 == steps { t_end - t } else { dt };
             y0.copy_from_slice(&y);
-            let mut sys = ChainLanes { chain, tau: &tau, drive: rows.drive, force: &[0.0; LANES], pivot, pivot_work: pivot.is_some(), q: &mut q, trig: &mut trig };
+            let mut sys = ChainLanes { chain, tau: &tau, drive: rows.drive, force: &[0.0; LANES], pivot, pivot_work: pivot.is_some(), q: &mut q };
             let stepped = rk.step_system(&mut y, t, h, &active, &mut sys);
             let nonfinite = stepped.map_err(|(stage, bad)| {
                 let j = (0..LANES).find(|&j| bad.lanes[j]).unwrap_or(0);
@@ -311,7 +310,6 @@ fn dop853_rows(rows: &mut Rows, t_end: f64, settings: &Settings, watch: &Watch) 
     // sees only its size), all controlled.
     let m = rows.layout.dim();
     let pivot = rows.base.moving_pivot();
-    let mut trig = lanes(if pivot.is_some() { 2 * n } else { 0 });
     let mut dp = Dop853Lanes::new(n, m, m, settings.rtol, settings.atol);
     let (mut y, mut y_new, tau, mut q) = (lanes(m), lanes(m), lanes(n), lanes(n));
     let zero = [0.0; LANES];
@@ -342,7 +340,7 @@ fn dop853_rows(rows: &mut Rows, t_end: f64, settings: &Settings, watch: &Watch) 
                 trackers[j].start(0.0, &state)?;
             }
         }
-        let mut sys = ChainLanes { chain, tau: &tau, drive: rows.drive, force: &zero, pivot, pivot_work: pivot.is_some(), q: &mut q, trig: &mut trig };
+        let mut sys = ChainLanes { chain, tau: &tau, drive: rows.drive, force: &zero, pivot, pivot_work: pivot.is_some(), q: &mut q };
         if fresh.iter().any(|&f| f) {
             let first = dp.start(&mut sys, &ctl.t, &y, &fresh, &[t_end; LANES], settings.dt).map_err(|(j, why)| {
                 let r = slot[j].unwrap_or(0);

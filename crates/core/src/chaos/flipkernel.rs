@@ -350,7 +350,6 @@ fn run_chunk_chain(
     // torques' work (for the lanes' layout; not reported).
     let m = chain.state_len() + usize::from(drive.is_some());
     let mut q = lanes(n);
-    let mut trig = lanes(if pivot.is_some() { 2 * n } else { 0 });
     let mut s = ChainLanes {
         y: lanes(m),
         y0: lanes(m),
@@ -373,7 +372,7 @@ fn run_chunk_chain(
         s.y0.copy_from_slice(&s.y);
         // Each lane at its own trajectory's time (for a drive).
         let t: Lane = std::array::from_fn(|i| s.step[i] as f64 * dt);
-        let mut sys = Equations { chain, tau: &s.tau, drive, force: &[0.0; LANES], pivot, pivot_work: false, q: &mut q, trig: &mut trig };
+        let mut sys = Equations { chain, tau: &s.tau, drive, force: &[0.0; LANES], pivot, pivot_work: false, q: &mut q };
         let stepped = s.rk.step_system_at(&mut s.y, &t, dt, &s.active, &mut sys);
         let nonfinite = match stepped {
             Ok(nonfinite) => nonfinite,

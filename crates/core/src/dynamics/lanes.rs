@@ -19,6 +19,9 @@ pub struct LaneScratch {
     ux: Vec<Lane>,
     uy: Vec<Lane>,
     dinv: Vec<Lane>,
+    /// `sin` and `cos` hold the angles' trig already ([`LaneScratch::trig_of`]): the next
+    /// accelerations take it instead of computing it again (and clear this).
+    known: bool,
 }
 
 impl LaneScratch {
@@ -30,7 +33,20 @@ impl LaneScratch {
             ux: z.clone(),
             uy: z.clone(),
             dinv: z,
+            known: false,
         }
+    }
+
+    /// The angles' `sin` and `cos`, computed once for the forces of a moving pivot and the
+    /// accelerations that must follow at the same angles ([`accelerations_on`] takes them
+    /// instead of computing them again: the same values, the same bits).
+    #[inline(always)]
+    pub fn trig_of(&mut self, theta: &[Lane]) -> (&[Lane], &[Lane]) {
+        for (a, th) in theta.iter().enumerate() {
+            (self.sin[a], self.cos[a]) = sin_cos(th);
+        }
+        self.known = true;
+        (&self.sin[..theta.len()], &self.cos[..theta.len()])
     }
 }
 
@@ -142,8 +158,11 @@ fn double(
     );
     let k = chain.lengths[0] * h2;
     let tol = PIVOT_TOL * d1 * d2;
-    let (s1, c1) = sin_cos(&theta[0]);
-    let (s2, c2) = sin_cos(&theta[1]);
+    let ((s1, c1), (s2, c2)) = if std::mem::take(&mut s.known) {
+        ((s.sin[0], s.cos[0]), (s.sin[1], s.cos[1]))
+    } else {
+        (sin_cos(&theta[0]), sin_cos(&theta[1]))
+    };
     // Kept for the tangent ([`tangent`]) at the same angles.
     (s.sin[0], s.cos[0], s.sin[1], s.cos[1]) = (s1, c1, s2, c2);
     let mut ok = [true; LANES];
@@ -210,8 +229,10 @@ fn recursion(
         &chain.diag[..n],
         chain.g,
     );
-    for a in 0..n {
-        (s.sin[a], s.cos[a]) = sin_cos(&theta[a]);
+    if !std::mem::take(&mut s.known) {
+        for a in 0..n {
+            (s.sin[a], s.cos[a]) = sin_cos(&theta[a]);
+        }
     }
     // Gravity and the centripetal pull of the links above.
     let (mut cu, mut su) = ([0.0; LANES], [0.0; LANES]);
@@ -474,12 +495,20 @@ pub fn add_losses(chain: &Chain, omega: &[Lane], q: &mut [Lane], power: &mut Lan
 pub fn add_pivot_forces(chain: &Chain, (ax, ay): (&Lane, &Lane), theta: &[Lane], q: &mut [Lane], trig: &mut [Lane]) {
     let n = theta.len();
     for a in 0..n {
-        let (sin, cos) = sin_cos(&theta[a]);
+        (trig[a], trig[n + a]) = sin_cos(&theta[a]);
+    }
+    let (sin, cos) = trig.split_at(n);
+    add_pivot_forces_from(chain, (ax, ay), (sin, cos), q);
+}
+
+/// [`add_pivot_forces`] from the angles' `sin` and `cos`.
+#[inline(always)]
+pub fn add_pivot_forces_from(chain: &Chain, (ax, ay): (&Lane, &Lane), (sin, cos): (&[Lane], &[Lane]), q: &mut [Lane]) {
+    for (a, qa) in q.iter_mut().enumerate().take(sin.len()) {
         let h = chain.h[a];
         for i in 0..LANES {
-            q[a][i] -= h * ax[i].mul_add(cos[i], ay[i] * sin[i]);
+            qa[i] -= h * ax[i].mul_add(cos[a][i], ay[i] * sin[a][i]);
         }
-        (trig[a], trig[n + a]) = (sin, cos);
     }
 }
 

@@ -6,7 +6,7 @@
 //! other lanes). Used by the steppers' bank (`run::bank`), the flip times of chains other than the
 //! double pendulum (`chaos::flipkernel`), ensembles and chaos indicators; each compiles it inside
 //! its `#[target_feature]` wrappers.
-use crate::dynamics::lanes::{accelerations, accelerations_on, add_losses, add_pivot_forces, CartLanes, LaneScratch, LaneSingular};
+use crate::dynamics::lanes::{accelerations, accelerations_on, add_losses, add_pivot_forces_from, CartLanes, LaneScratch, LaneSingular};
 use crate::dynamics::base::Pivot;
 use crate::dynamics::torque::Timed;
 use crate::model::Chain;
@@ -44,8 +44,6 @@ pub struct ChainLanes<'a> {
     pub pivot_work: bool,
     /// The generalized forces with the losses (`N` lanes of scratch).
     pub q: &'a mut [Lane],
-    /// The angles' trig for a moving pivot (`2N` lanes of scratch; empty without one).
-    pub trig: &'a mut [Lane],
 }
 
 impl LaneSystem for ChainLanes<'_> {
@@ -77,9 +75,11 @@ impl LaneSystem for ChainLanes<'_> {
         let mut pivot_power = None;
         if let Some(pivot) = self.pivot {
             let (ax, ay) = pivot.acc_lanes(at);
-            add_pivot_forces(chain, (&ax, &ay), theta, self.q, self.trig);
+            // The angles' trig once, for these forces and the accelerations below.
+            let trig = scratch.trig_of(theta);
+            add_pivot_forces_from(chain, (&ax, &ay), trig, self.q);
             if self.pivot_work {
-                pivot_power = Some(pivot_power_of(chain, (&ax, &ay), omega, self.trig));
+                pivot_power = Some(pivot_power_of(chain, (&ax, &ay), omega, trig));
             }
         }
         let mut power = [0.0; LANES];
@@ -116,16 +116,14 @@ impl LaneSystem for ChainLanes<'_> {
 }
 
 /// The power of a moving pivot's forces, `-a_p . R_dot` with `R_dot = sum_a h_a omega_a (cos,
-/// sin)(theta_a)` (the driver's pivot slot's rate), from the angles' `trig` that
-/// [`add_pivot_forces`] left.
+/// sin)(theta_a)` (the driver's pivot slot's rate), from the angles' `sin` and `cos`.
 #[inline(always)]
-fn pivot_power_of(chain: &Chain, (ax, ay): (&Lane, &Lane), omega: &[Lane], trig: &[Lane]) -> Lane {
-    let n = omega.len();
+fn pivot_power_of(chain: &Chain, (ax, ay): (&Lane, &Lane), omega: &[Lane], (sin, cos): (&[Lane], &[Lane])) -> Lane {
     let (mut rx, mut ry) = ([0.0; LANES], [0.0; LANES]);
-    for a in 0..n {
-        let (sin, cos, h) = (trig[a], trig[n + a], chain.h[a]);
+    for (a, w) in omega.iter().enumerate() {
+        let (sin, cos, h) = (sin[a], cos[a], chain.h[a]);
         for i in 0..LANES {
-            let hw = h * omega[a][i];
+            let hw = h * w[i];
             rx[i] += hw * cos[i];
             ry[i] += hw * sin[i];
         }
@@ -200,7 +198,7 @@ impl Rk4Lanes {
     ) -> std::result::Result<[bool; LANES], (usize, LaneSingular)> {
         let mut q = std::mem::take(&mut self.q);
         // The chain's equations do not depend on time: the steps' times are immaterial.
-        let out = self.step_system(y, 0.0, dt, active, &mut ChainLanes { chain, tau, drive: None, force, pivot: None, pivot_work: false, q: &mut q, trig: &mut [] });
+        let out = self.step_system(y, 0.0, dt, active, &mut ChainLanes { chain, tau, drive: None, force, pivot: None, pivot_work: false, q: &mut q });
         self.q = q;
         out
     }

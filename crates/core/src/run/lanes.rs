@@ -164,11 +164,10 @@ unsafe fn group_avx2(g: &Group, watch: &Watch) -> Result<Vec<Trajectory>> {
 const NO_FORCE: Lane = [0.0; LANES];
 
 /// The group's equations in lanes, with the per-trajectory run's work slots; `zero` the held
-/// torques (none: a drive's torques of time ride along instead), `q` and `trig` scratch
-/// (`N` and, with a pivot, `2N` lanes).
+/// torques (none: a drive's torques of time ride along instead), `q` scratch (`N` lanes).
 #[inline(always)]
-fn equations<'a>(g: &'a Group, zero: &'a [Lane], q: &'a mut [Lane], trig: &'a mut [Lane]) -> ChainLanes<'a> {
-    ChainLanes { chain: g.chain, tau: zero, drive: g.drive, force: &NO_FORCE, pivot: g.pivot, pivot_work: g.layout.pivot, q, trig }
+fn equations<'a>(g: &'a Group, zero: &'a [Lane], q: &'a mut [Lane]) -> ChainLanes<'a> {
+    ChainLanes { chain: g.chain, tau: zero, drive: g.drive, force: &NO_FORCE, pivot: g.pivot, pivot_work: g.layout.pivot, q }
 }
 
 #[inline(always)]
@@ -182,7 +181,6 @@ fn run_group(g: &Group, watch: &Watch) -> Result<Vec<Trajectory>> {
     let d = layout.dim();
     let lanes = |k| vec![[0.0; LANES]; k];
     let (mut y, mut y0, mut f0, mut f1, mut q, zero) = (lanes(d), lanes(d), lanes(d), lanes(d), lanes(n), lanes(n));
-    let mut trig = lanes(if g.pivot.is_some() { 2 * n } else { 0 });
     let mut scratch = LaneScratch::new(n);
     let mut rk = Rk4Lanes::with_dim(n, d);
     let mut active = [0.0; LANES];
@@ -230,7 +228,7 @@ fn run_group(g: &Group, watch: &Watch) -> Result<Vec<Trajectory>> {
             }
         }
         y0.copy_from_slice(&y);
-        let nonfinite = rk.step_system(&mut y, t, h, &active, &mut equations(g, &zero, &mut q, &mut trig)).map_err(|(stage, bad)| {
+        let nonfinite = rk.step_system(&mut y, t, h, &active, &mut equations(g, &zero, &mut q)).map_err(|(stage, bad)| {
             let j = (0..LANES).find(|&j| bad.lanes[j]).unwrap_or(0);
             error(j, failed_at(&bad, j, stage, t, h), &bad.reason(j))
         })?;
@@ -251,7 +249,7 @@ fn run_group(g: &Group, watch: &Watch) -> Result<Vec<Trajectory>> {
                     error(j, t, &s.reason(j))
                 };
                 let mut slope = |t: f64, y: &[Lane], dy: &mut [Lane]| {
-                    equations(g, &zero, &mut q, &mut trig).rates(&[t; LANES], y, dy, &mut scratch, &active).map_err(|s| failed(t)(s.seen_in(y)))
+                    equations(g, &zero, &mut q).rates(&[t; LANES], y, dy, &mut scratch, &active).map_err(|s| failed(t)(s.seen_in(y)))
                 };
                 if !start_known {
                     slope(t, &y0, &mut f0)?;
@@ -387,7 +385,6 @@ fn dop853_rows(g: &Group, watch: &Watch) -> Result<Vec<Trajectory>> {
     let te = settings.t_eval.as_deref().unwrap_or(&[]);
     let lanes = |k| vec![[0.0; LANES]; k];
     let (mut y, mut y_new, mut q, zero) = (lanes(d), lanes(d), lanes(n), lanes(n));
-    let mut trig = lanes(if g.pivot.is_some() { 2 * n } else { 0 });
     let mut dp = Dop853Lanes::new(n, d, d, settings.rtol, settings.atol);
     let error = |r: usize, t: f64, reason: &str| Error::integration(t, format!("trajectory {}: {reason}", g.first + r));
     let mut done: Vec<Option<Trajectory>> = (0..count).map(|_| None).collect();
@@ -410,7 +407,7 @@ fn dop853_rows(g: &Group, watch: &Watch) -> Result<Vec<Trajectory>> {
                 recs[j] = Recorder::default();
             }
         }
-        let mut sys = equations(g, &zero, &mut q, &mut trig);
+        let mut sys = equations(g, &zero, &mut q);
         if fresh.iter().any(|&f| f) {
             let first = dp.start(&mut sys, &ctl.t, &y, &fresh, &[t_end; LANES], settings.dt).map_err(|(j, why)| {
                 let r = slot[j].unwrap_or(0);
