@@ -79,14 +79,26 @@ def run_ours(chain, th, steps):
 DOP853_NS, DOP853_B, DOP853_T = (2, 3, 8), 2048, 10.0
 
 
-def run_dop853(chain, th, route):
+def on_route(route, run):
+    """``run()`` timed with ``MULTIPENDULUM_LANES=route``: (its result, seconds)."""
     os.environ["MULTIPENDULUM_LANES"] = route
     try:
         t0 = time.perf_counter()
-        ens = mp.ensemble(chain, th, np.zeros_like(th), DOP853_T)
-        return float(ens.steps.sum()), time.perf_counter() - t0
+        out = run()
+        return out, time.perf_counter() - t0
     finally:
         os.environ.pop("MULTIPENDULUM_LANES", None)
+
+
+def both_routes(rounds, run):
+    """``run()`` on the lanes and on the per-trajectory route, alternated: the last result and
+    every time of each."""
+    results, times = {}, {"lanes": [], "per trajectory": []}
+    for r in range(rounds):
+        for who in (("lanes", "per trajectory") if r % 2 == 0 else ("per trajectory", "lanes")):
+            results[who], t = on_route("auto" if who == "lanes" else "scalar", run)
+            times[who].append(t)
+    return results, times
 
 
 def measure_dop853(rounds):
@@ -94,11 +106,7 @@ def measure_dop853(rounds):
     for n in DOP853_NS:
         chain = mp.Chain(np.ones(n), np.ones(n), g=G)
         th = np.random.default_rng(n).uniform(-0.5, 0.5, (DOP853_B, n))
-        steps, times = {}, {"lanes": [], "per trajectory": []}
-        for r in range(rounds):
-            for who in (("lanes", "per trajectory") if r % 2 == 0 else ("per trajectory", "lanes")):
-                steps[who], t = run_dop853(chain, th, "auto" if who == "lanes" else "scalar")
-                times[who].append(t)
+        steps, times = both_routes(rounds, lambda c=chain, x=th: float(mp.ensemble(c, x, np.zeros_like(x), DOP853_T).steps.sum()))
         rate = {k: steps[k] / float(np.median(v)) for k, v in times.items()}
         rows.append({"n": n, "steps": steps, "times": times, "rate": rate, "speedup": rate["lanes"] / rate["per trajectory"]})
     return rows
@@ -107,28 +115,15 @@ def measure_dop853(rounds):
 BATCH_B, BATCH_NS = 4096, (2, 3, 8)
 
 
-def run_batch(chain, th, method, route):
-    os.environ["MULTIPENDULUM_LANES"] = route
-    fixed = dict(method="rk4", dt=DT) if method == "rk4" else {}
-    try:
-        t0 = time.perf_counter()
-        sol = mp.simulate(chain, th, np.zeros_like(th), DT * STEPS, t_eval=np.linspace(0.0, DT * STEPS, 11), **fixed)
-        return sol, time.perf_counter() - t0
-    finally:
-        os.environ.pop("MULTIPENDULUM_LANES", None)
-
-
 def measure_batch(rounds):
     rows = []
     for method in ("rk4", "dop853"):
+        fixed = dict(method="rk4", dt=DT) if method == "rk4" else {}
         for n in BATCH_NS:
             chain = mp.Chain(np.ones(n), np.ones(n), g=G)
             th = np.random.default_rng(n).uniform(-0.5, 0.5, (BATCH_B, n))
-            sols, times = {}, {"lanes": [], "per trajectory": []}
-            for r in range(rounds):
-                for who in (("lanes", "per trajectory") if r % 2 == 0 else ("per trajectory", "lanes")):
-                    sols[who], t = run_batch(chain, th, method, "auto" if who == "lanes" else "scalar")
-                    times[who].append(t)
+            sols, times = both_routes(rounds, lambda c=chain, x=th, k=fixed: mp.simulate(
+                c, x, np.zeros_like(x), DT * STEPS, t_eval=np.linspace(0.0, DT * STEPS, 11), **k))
             steps = {k: float(np.sum(v.stats.steps)) for k, v in sols.items()}
             rate = {k: steps[k] / float(np.median(v)) for k, v in times.items()}
             gap = float(np.max(np.abs(sols["lanes"].theta - sols["per trajectory"].theta)))

@@ -34,7 +34,7 @@ use crate::par::*;
 use crate::run::driver::fixed_steps;
 use crate::run::events::{Condition, EventSpec, Tracker};
 use crate::run::energy::EnergyBalance;
-use crate::run::lanes::{raw_row, LaneControl};
+use crate::run::lanes::{lane_of, raw_row, LaneControl};
 use crate::run::simulate::Books;
 use crate::run::Settings;
 use crate::trig::lanes::{Lane, Path, LANES};
@@ -322,11 +322,6 @@ fn dop853_rows(rows: &mut Rows, t_end: f64, settings: &Settings, watch: &Watch) 
     let mut found = [false; LANES];
     let mut next = 0;
     let mut state = vec![0.0; m];
-    let lane = |y: &[Lane], j: usize, out: &mut [f64]| {
-        for (o, v) in out.iter_mut().zip(y) {
-            *o = v[j];
-        }
-    };
     loop {
         let mut fresh = [false; LANES];
         for j in 0..LANES {
@@ -336,7 +331,7 @@ fn dop853_rows(rows: &mut Rows, t_end: f64, settings: &Settings, watch: &Watch) 
                 ctl.restart(j, 0.0);
                 found[j] = false;
                 trackers[j] = tracker();
-                lane(&y, j, &mut state);
+                lane_of(&y, j, &mut state);
                 trackers[j].start(0.0, &state)?;
             }
         }
@@ -368,7 +363,7 @@ fn dop853_rows(rows: &mut Rows, t_end: f64, settings: &Settings, watch: &Watch) 
         // The rows' first flips: a crossing in the step is located on its interpolant.
         let mut crossed = [false; LANES];
         for j in (0..LANES).filter(|&j| accepted[j] && !found[j]) {
-            lane(&y_new, j, &mut state);
+            lane_of(&y_new, j, &mut state);
             crossed[j] = trackers[j].detect(t_new[j], &state)?;
             if !crossed[j] {
                 trackers[j].accept();

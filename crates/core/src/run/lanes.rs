@@ -93,13 +93,27 @@ pub(crate) fn layout(chain: &Chain, drive: &Timed, motion: &Drive) -> Result<Lay
     Ok(ChainSystem::new(chain, drive.clone(), Form::Lagrangian).with_drive(motion.clone())?.layout())
 }
 
-/// Lane `j` of `y` as the run driver's raw state: the losses' slot holds the energy dissipated,
-/// `D`, where the lanes integrate its work, `-D`.
+/// Lane `j` of `y` into `out`.
+#[inline]
+pub(crate) fn lane_of(y: &[Lane], j: usize, out: &mut [f64]) {
+    for (o, v) in out.iter_mut().zip(y) {
+        *o = v[j];
+    }
+}
+
+/// Lane `j` of `y` as the run driver's raw state ([`to_raw`]).
 #[inline]
 pub(crate) fn raw_row(layout: Layout, y: &[Lane], j: usize, row: &mut [f64]) {
-    let losses = layout.dissipated();
-    for (m, v) in row.iter_mut().enumerate() {
-        *v = if Some(m) == losses { -y[m][j] } else { y[m][j] };
+    lane_of(y, j, row);
+    to_raw(layout, row);
+}
+
+/// A lane's state (or its interpolant's) as the run driver's raw state: the losses' slot holds
+/// the energy dissipated, `D`, where the lanes integrate its work, `-D`.
+#[inline]
+fn to_raw(layout: Layout, row: &mut [f64]) {
+    if let Some(m) = layout.dissipated() {
+        row[m] = -row[m];
     }
 }
 
@@ -193,29 +207,26 @@ fn run_group(g: &Group, watch: &Watch) -> Result<Vec<Trajectory>> {
     // A row of every lane into its recorder: the driver's raw state (the losses' slot holds the
     // energy dissipated, D; the lanes integrate their work, -D).
     let mut recs: Vec<Recorder> = (0..count).map(|_| Recorder::default()).collect();
-    let record = |recs: &mut [Recorder], t: f64, y: &[Lane], checked: bool| -> Result<()> {
-        let mut row = vec![0.0; d];
+    let mut row = vec![0.0; d];
+    let mut record = |recs: &mut [Recorder], t: f64, y: &[Lane]| {
         for (j, rec) in recs.iter_mut().enumerate() {
             raw_row(layout, y, j, &mut row);
-            if checked {
-                check_finite_state(t, &row).map_err(|_| error(j, t, NON_FINITE))?;
-            }
             rec.push(t, &row);
         }
-        Ok(())
     };
     let t_eval = settings.t_eval.as_deref();
     let dt = settings.dt.unwrap_or(f64::NAN);
     let steps = fixed_steps(t_end, dt);
     let grid = |k: u64| if k == steps { t_end } else { k as f64 * dt };
     if t_eval.is_none() {
-        record(&mut recs, 0.0, &y, false)?;
+        record(&mut recs, 0.0, &y);
     }
     let (mut next, mut evaluations) = (0, 0u64);
     // Whether the slope at the current state is known (the last step's end slope, kept).
     let mut end_known = false;
     let snap = 1e-9;
-    let mut out = lanes(d);
+    // A step's ends and slopes in one lane, and its interpolant's value there.
+    let (mut ends, mut point) = ([vec![0.0; d], vec![0.0; d], vec![0.0; d], vec![0.0; d]], vec![0.0; d]);
     for k in 0..steps {
         let (t, t1) = (grid(k), grid(k + 1));
         let h = t1 - t;
@@ -223,7 +234,7 @@ fn run_group(g: &Group, watch: &Watch) -> Result<Vec<Trajectory>> {
         watch.check(t)?;
         if let Some(te) = t_eval {
             while next < te.len() && te[next] <= t + snap * h {
-                record(&mut recs, te[next], &y, false)?;
+                record(&mut recs, te[next], &y);
                 next += 1;
             }
         }
@@ -259,26 +270,26 @@ fn run_group(g: &Group, watch: &Watch) -> Result<Vec<Trajectory>> {
                 evaluations += 1;
                 end_known = true;
                 while next < te.len() && te[next] < edge {
-                    let x = (te[next] - t) / h;
-                    for j in 0..count {
-                        let lane = |v: &[Lane]| v.iter().map(|l| l[j]).collect::<Vec<f64>>();
-                        let mut row = vec![0.0; d];
-                        hermite(&lane(&y0), &lane(&f0), &lane(&y), &lane(&f1), h, x, &mut row);
-                        for (m, v) in row.iter().enumerate() {
-                            out[m][j] = *v;
+                    let (at, x) = (te[next], (te[next] - t) / h);
+                    for (j, rec) in recs.iter_mut().enumerate() {
+                        for (buf, v) in ends.iter_mut().zip([&y0, &f0, &y, &f1]) {
+                            lane_of(v, j, buf);
                         }
+                        hermite(&ends[0], &ends[1], &ends[2], &ends[3], h, x, &mut point);
+                        to_raw(layout, &mut point);
+                        check_finite_state(at, &point).map_err(|_| error(j, at, NON_FINITE))?;
+                        rec.push(at, &point);
                     }
-                    record(&mut recs, te[next], &out, true)?;
                     next += 1;
                 }
             }
         } else {
-            record(&mut recs, t1, &y, false)?;
+            record(&mut recs, t1, &y);
         }
     }
     if let Some(te) = t_eval {
         while next < te.len() {
-            record(&mut recs, te[next], &y, false)?;
+            record(&mut recs, te[next], &y);
             next += 1;
         }
     }
@@ -446,17 +457,12 @@ fn dop853_rows(g: &Group, watch: &Watch) -> Result<Vec<Trajectory>> {
                 let j = (0..LANES).find(|&j| s.lanes[j]).unwrap_or(0);
                 error(slot[j].unwrap_or(0), t[j], &s.reason(j))
             })?;
-            let mut out = vec![[0.0; LANES]; d];
-            let mut one = vec![0.0; d];
             for j in (0..LANES).filter(|&j| inside[j]) {
                 evaluations[j] += 3;
                 while next_out[j] < te.len() && te[next_out[j]] < t_new[j] {
                     let at = te[next_out[j]];
-                    dp.interpolate(j, &y, (at - t[j]) / h_try[j], &mut one);
-                    for (o, v) in out.iter_mut().zip(&one) {
-                        o[j] = *v;
-                    }
-                    raw_row(layout, &out, j, &mut row);
+                    dp.interpolate(j, &y, (at - t[j]) / h_try[j], &mut row);
+                    to_raw(layout, &mut row);
                     check_finite_state(at, &row).map_err(|_| error(slot[j].unwrap_or(0), at, NON_FINITE))?;
                     recs[j].push(at, &row);
                     next_out[j] += 1;
