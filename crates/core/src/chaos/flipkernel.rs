@@ -25,7 +25,7 @@
 use std::f64::consts::PI;
 
 use super::flip_time;
-use crate::trig::lanes::{sin_cos, Lane, Path, LANES};
+use crate::trig::lanes::{each, sin_cos, Lane, Path, LANES};
 use crate::dynamics::{Singular, PIVOT_TOL};
 use crate::error::{Error, Result};
 use crate::dynamics::base::Pivot;
@@ -371,7 +371,7 @@ fn run_chunk_chain(
         stop.check(s.step[0] as f64 * dt)?;
         s.y0.copy_from_slice(&s.y);
         // Each lane at its own trajectory's time (for a drive).
-        let t: Lane = std::array::from_fn(|i| s.step[i] as f64 * dt);
+        let t = each(|i| s.step[i] as f64 * dt);
         let mut sys = Equations { chain, tau: &s.tau, drive, force: &[0.0; LANES], pivot, pivot_work: false, q: &mut q };
         let stepped = s.rk.step_system_at(&mut s.y, &t, dt, &s.active, &mut sys);
         let nonfinite = match stepped {

@@ -19,7 +19,7 @@ use crate::dynamics::lanes::LaneSingular;
 use crate::integrators::lanes::{LaneSystem, Rk4Lanes};
 use crate::model::Chain;
 use crate::par::*;
-use crate::trig::lanes::{Lane, Path, LANES};
+use crate::trig::lanes::{each, Lane, Path, LANES};
 use crate::watch::Watch;
 
 /// Rows per parallel task: eight groups.
@@ -341,7 +341,7 @@ impl Group {
                         sq[i] += row[i] * row[i];
                     }
                 }
-                let r: Lane = std::array::from_fn(|i| sq[i].sqrt());
+                let r: Lane = each(|i| sq[i].sqrt());
                 if (0..LANES).any(|i| active[i] > 0.0 && !(r[i] > 0.0)) {
                     return Ok(None);
                 }

@@ -7,7 +7,7 @@ use std::sync::Arc;
 
 use super::torque::{Builtin, Interp, TorqueSource};
 use crate::error::{Error, Result};
-use crate::trig::lanes::{sin_cos, Lane, LANES};
+use crate::trig::lanes::{each, sin_cos, Lane, LANES};
 
 /// A prescribed coordinate of the pivot as a function of time, with two derivatives.
 #[derive(Clone)]
@@ -123,12 +123,12 @@ impl Axis {
         match self {
             Axis::Fixed(_) => [0.0; LANES],
             Axis::Sinusoid { amplitude, frequency, phase, .. } => {
-                let arg: Lane = std::array::from_fn(|i| frequency * at[i] + phase);
+                let arg: Lane = each(|i| frequency * at[i] + phase);
                 let (sin, _) = sin_cos(&arg);
                 let k = -amplitude * frequency * frequency;
                 sin.map(|s| k * s)
             }
-            Axis::Spline { .. } => std::array::from_fn(|i| self.eval(at[i]).map_or(f64::NAN, |m| m[2])),
+            Axis::Spline { .. } => each(|i| self.eval(at[i]).map_or(f64::NAN, |m| m[2])),
             Axis::Function(_) => [f64::NAN; LANES],
         }
     }

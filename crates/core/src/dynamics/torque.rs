@@ -3,7 +3,7 @@
 //! (acting between link i-1 and link i, the robotics convention) and maps them to
 //! `tau_i = u_i - u_{i+1}`.
 use crate::error::{check_finite, Error, Result};
-use crate::trig::lanes::{sin_cos, Lane, LANES};
+use crate::trig::lanes::{each, sin_cos, Lane, LANES};
 
 pub trait TorqueSource {
     /// `false` for the undriven chain: the integrators then skip the call and the work integral.
@@ -199,7 +199,7 @@ impl Timed {
         match &self.builtin {
             Builtin::Sinusoid { amplitude, frequency, phase, offset } => {
                 for (a, o) in out.iter_mut().enumerate() {
-                    let arg: Lane = std::array::from_fn(|i| frequency[a] * at[i] + phase[a]);
+                    let arg: Lane = each(|i| frequency[a] * at[i] + phase[a]);
                     let (sin, _) = sin_cos(&arg);
                     for i in 0..LANES {
                         o[i] = offset[a] + amplitude[a] * sin[i];

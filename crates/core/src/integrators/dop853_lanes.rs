@@ -11,7 +11,7 @@ use super::dop853_tableau::{A, B, C, E3, E5};
 use super::lanes::LaneSystem;
 use crate::dynamics::lanes::{LaneScratch, LaneSingular};
 use crate::dynamics::Singular;
-use crate::trig::lanes::{Lane, LANES};
+use crate::trig::lanes::{each, Lane, LANES};
 
 /// Why a lane's first step could not be found: a singular configuration (its link), or rates
 /// that are not finite however small the trial.
@@ -73,7 +73,7 @@ impl Dop853Lanes {
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
     fn eval(sys: &mut impl LaneSystem, t: &Lane, c: f64, h: &Lane, src: &[Lane], dst: &mut [Lane], scratch: &mut LaneScratch, active: &Lane) -> [bool; LANES] {
-        let at: Lane = std::array::from_fn(|i| t[i] + c * h[i]);
+        let at: Lane = each(|i| t[i] + c * h[i]);
         match sys.rates(&at, src, dst, scratch, active) {
             Ok(()) => [false; LANES],
             Err(s) => s.lanes,
@@ -144,7 +144,7 @@ impl Dop853Lanes {
                 } else if h0[i] > 1e-300 {
                     h0[i] *= 0.01;
                 } else if singular[i] {
-                    let at: Lane = std::array::from_fn(|l| t[l] + h0[l]);
+                    let at: Lane = each(|l| t[l] + h0[l]);
                     let tmp = std::mem::take(&mut self.tmp);
                     return Err((i, self.singular(sys, &at, &tmp, i)));
                 } else {
@@ -183,7 +183,7 @@ impl Dop853Lanes {
             }
         }
         combine(&B[..STAGES], &k[..STAGES], y, h, y_new);
-        let at: Lane = std::array::from_fn(|i| t[i] + h[i]);
+        let at: Lane = each(|i| t[i] + h[i]);
         if let Err(s) = sys.rates(&at, y_new, &mut k[STAGES], scratch, active) {
             for i in 0..LANES {
                 bad[i] |= s.lanes[i];
@@ -205,7 +205,7 @@ impl Dop853Lanes {
                 e3[i] += (a3[i] / scale).powi(2);
             }
         }
-        std::array::from_fn(|i| if bad[i] { f64::INFINITY } else { combined_error(h[i], e5[i], e3[i], e) })
+        each(|i| if bad[i] { f64::INFINITY } else { combined_error(h[i], e5[i], e3[i], e) })
     }
 
     /// The last trials of the lanes `accepted` became their states: their next step starts from
@@ -229,7 +229,7 @@ impl Dop853Lanes {
         for s in STAGES + 1..16 {
             let (done, rest) = k.split_at_mut(s);
             combine(&A[s][..s], done, y, h, tmp);
-            let at: Lane = std::array::from_fn(|i| t[i] + C[s] * h[i]);
+            let at: Lane = each(|i| t[i] + C[s] * h[i]);
             sys.rates(&at, tmp, &mut rest[0], scratch, &active).map_err(|s| s.seen_in(tmp))?;
         }
         for m in 0..*d {

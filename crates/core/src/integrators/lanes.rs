@@ -10,7 +10,7 @@ use crate::dynamics::lanes::{accelerations, accelerations_on, add_losses, add_pi
 use crate::dynamics::base::Pivot;
 use crate::dynamics::torque::Timed;
 use crate::model::Chain;
-use crate::trig::lanes::{Lane, LANES};
+use crate::trig::lanes::{each, Lane, LANES};
 
 /// A system of lanes built on a chain's accelerations. A trait rather than a closure: its
 /// `#[inline(always)]` method is compiled inside the caller's `#[target_feature]` wrapper, where
@@ -128,7 +128,7 @@ fn pivot_power_of(chain: &Chain, (ax, ay): (&Lane, &Lane), omega: &[Lane], (sin,
             ry[i] += hw * sin[i];
         }
     }
-    std::array::from_fn(|i| -ax[i].mul_add(rx[i], ay[i] * ry[i]))
+    each(|i| -ax[i].mul_add(rx[i], ay[i] * ry[i]))
 }
 
 /// When rk4's `stage` of lane `i` failed in the step of size `h` from `t`, as the scalar route
@@ -232,7 +232,11 @@ impl Rk4Lanes {
         for stage in 0..4 {
             {
                 let src: &[Lane] = if stage == 0 { &y[..] } else { &tmp[..] };
-                let at: Lane = std::array::from_fn(|i| [t[i], t[i] + half, t[i] + half, t[i] + dt][stage]);
+                let at = each(|i| match stage {
+                    0 => t[i],
+                    3 => t[i] + dt,
+                    _ => t[i] + half,
+                });
                 sys.rates(&at, src, &mut k[stage], scratch, active).map_err(|s| (stage, s.seen_in(src)))?;
             }
             if stage < 3 {

@@ -11,6 +11,18 @@
 pub const LANES: usize = 8;
 pub type Lane = [f64; LANES];
 
+/// `[f(0), .., f(7)]`, always compiled into its caller. `std::array::from_fn` need not be: the
+/// rk4 lanes' stage times through it were a function of their own on the baseline target (SSE2,
+/// outside the caller's `#[target_feature]`), a third of the generic flip lanes' time.
+#[inline(always)]
+pub fn each(mut f: impl FnMut(usize) -> f64) -> Lane {
+    let mut out = [0.0; LANES];
+    for (i, o) in out.iter_mut().enumerate() {
+        *o = f(i);
+    }
+    out
+}
+
 /// A compiled copy of the kernel.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Path {
