@@ -197,6 +197,7 @@ def run_script(stem, quick, python):
     """Run bench/bench_<stem>.py (with --quick when asked) writing build/<stem>.json and .md:
     the common part of the record, the process, and the two paths."""
     script = BENCH / f"bench_{stem}.py"
+    BUILD.mkdir(exist_ok=True)  # a fresh clone's first (partial) run has none yet
     out_json, out_md = BUILD / f"{stem}.json", BUILD / f"{stem}.md"
     for p in (out_json, out_md):
         p.unlink(missing_ok=True)
