@@ -292,7 +292,7 @@ pub fn first_flips(
     let pivot = pivot.filter(|p| !p.is_fixed());
     // The kernels: the ideal undriven double pendulum's own, any other chain in lanes (damping,
     // friction, a cart, a built-in torque and a pivot motion of time included).
-    if let Some(path) = flipkernel::requested()?.filter(|_| pivot.is_none_or(Pivot::in_lanes)) {
+    if let Some(path) = flipkernel::requested()?.filter(|_| pivot.map_or(true, Pivot::in_lanes)) {
         let drive = Timed::generalized(torque);
         return match (chain.n(), chain.is_ideal()) {
             (2, true) if drive.is_none() && pivot.is_none() && !flipkernel::generic() => {

@@ -229,6 +229,10 @@ impl Bank {
     pub fn len(&self) -> usize {
         self.count
     }
+
+    pub fn is_empty(&self) -> bool {
+        self.count == 0
+    }
 }
 
 /// Each copy of the group: its state row and `(t, energy, energy_error)` (the energies in lanes).
