@@ -65,19 +65,6 @@ pub fn generic() -> bool {
 const W: usize = 2 * LANES;
 type Wide = [f64; W];
 
-/// `sin` and `cos` of every lane of a [`Wide`], as [`sin_cos`] of its two halves.
-#[inline(always)]
-fn sin_cos_wide(x: &Wide) -> (Wide, Wide) {
-    let (mut s, mut c) = ([0.0; W], [0.0; W]);
-    for h in 0..2 {
-        let half: &Lane = x[h * LANES..(h + 1) * LANES].try_into().expect("a half is a lane");
-        let (hs, hc) = sin_cos(half);
-        s[h * LANES..(h + 1) * LANES].copy_from_slice(&hs);
-        c[h * LANES..(h + 1) * LANES].copy_from_slice(&hc);
-    }
-    (s, c)
-}
-
 /// The double pendulum's constant coefficients, as `Chain::accelerations_double` uses them.
 #[derive(Debug, Clone, Copy)]
 struct Coef {
@@ -103,8 +90,8 @@ impl Coef {
 #[inline(always)]
 fn accelerations(c: &Coef, y: &[Wide; 4], a1: &mut Wide, a2: &mut Wide, det: &mut Wide) {
     let [th1, th2, w1, w2] = y;
-    let (s1, c1) = sin_cos_wide(th1);
-    let (s2, c2) = sin_cos_wide(th2);
+    let (s1, c1) = sin_cos(th1);
+    let (s2, c2) = sin_cos(th2);
     for i in 0..W {
         let (s12, c12) = (s1[i].mul_add(c2[i], -(c1[i] * s2[i])), c1[i].mul_add(c2[i], s1[i] * s2[i]));
         let r1 = (-c.gh1).mul_add(s1[i], -(c.k * s12 * w2[i] * w2[i]));

@@ -143,12 +143,13 @@ pub(crate) fn sin_cos_reduced(x: f64) -> (f64, f64) {
     (sin, cos)
 }
 
-/// `sin` and `cos` of every lane; lanes outside the reduction's range (or not finite) take
-/// the scalar route.
+/// `sin` and `cos` of every lane (of a [`Lane`], or of any width `W` a kernel steps at once);
+/// lanes outside the reduction's range (or not finite) take the scalar route. Each lane's value
+/// is its own, whatever the width.
 #[inline(always)]
-pub fn sin_cos(x: &Lane) -> (Lane, Lane) {
-    let (mut s, mut c) = ([0.0; LANES], [0.0; LANES]);
-    for i in 0..LANES {
+pub fn sin_cos<const W: usize>(x: &[f64; W]) -> ([f64; W], [f64; W]) {
+    let (mut s, mut c) = ([0.0; W], [0.0; W]);
+    for i in 0..W {
         (s[i], c[i]) = sin_cos_reduced(x[i]);
     }
     let mut outside = false;
@@ -156,7 +157,7 @@ pub fn sin_cos(x: &Lane) -> (Lane, Lane) {
         outside |= !(v.abs() <= REDUCE_LIMIT);
     }
     if outside {
-        for i in 0..LANES {
+        for i in 0..W {
             if !(x[i].abs() <= REDUCE_LIMIT) {
                 (s[i], c[i]) = super::sin_cos(x[i]);
             }
