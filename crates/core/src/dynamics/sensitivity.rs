@@ -354,16 +354,20 @@ impl Chain {
     }
 }
 
-/// What the Lagrangian tangent shares between directions at one state: the coupled sums of
-/// `omega^2` (cosine part) and of the accelerations (sine part), and the mass matrix's
-/// factorisation (left in the workspace by [`Chain::eliminate`]). With them a direction costs
-/// one fused pass and a solve without divisions: the same equations as
-/// [`Chain::tangent_general`] (which the Jacobian and the Lyapunov runs keep, bit for bit),
-/// regrouped (tested equal to round-off).
+/// What the tangents share between directions at one state: the mass matrix's factorisation
+/// (left in the workspace by [`Chain::eliminate`]) and coupled sums of the rates. The
+/// Lagrangian tangent's are those of `omega^2` (cosine part) and of the accelerations (sine
+/// part); with them a direction costs one fused pass and a solve without divisions: the same
+/// equations as [`Chain::tangent_general`] (which the Jacobian and the Lyapunov runs keep, bit
+/// for bit), regrouped (tested equal to round-off). The Hamiltonian tangent's are those of
+/// `omega` (both parts); a direction then costs two coupled sums and the solve, not the
+/// angles' trig and a factorisation of its own as [`Chain::hamilton_tangent_forced`] does.
 #[derive(Debug, Clone, Default)]
 pub(crate) struct Shared {
-    cos_w2: Vec<f64>,
-    sin_acc: Vec<f64>,
+    /// The cosine and sine parts of the shared coupled sums (the Lagrangian's: of `omega^2` and of
+    /// the accelerations; the Hamiltonian's: both of `omega`).
+    cos_sums: Vec<f64>,
+    sin_sums: Vec<f64>,
     scratch: Vec<f64>,
     junk: Vec<f64>,
     /// The cart's articulated inertia term `G_xx` of the factorisation.
@@ -372,7 +376,7 @@ pub(crate) struct Shared {
 
 impl Shared {
     fn new(n: usize) -> Self {
-        Shared { cos_w2: vec![0.0; n], sin_acc: vec![0.0; n], scratch: vec![0.0; n], junk: vec![0.0; n], gxx: 0.0 }
+        Shared { cos_sums: vec![0.0; n], sin_sums: vec![0.0; n], scratch: vec![0.0; n], junk: vec![0.0; n], gxx: 0.0 }
     }
 }
 
@@ -380,21 +384,229 @@ impl Chain {
     /// Fill `sh` at a state (the angles' trig in `ws`) and factor the mass matrix into `ws`.
     fn share(&self, omega: &[f64], accel: &[f64], sh: &mut Shared, ws: &mut Workspace) -> std::result::Result<(), Singular> {
         let n = self.n();
-        let Shared { cos_w2, sin_acc, scratch, junk, .. } = sh;
+        let Shared { cos_sums, sin_sums, scratch, junk, .. } = sh;
         for a in 0..n {
             scratch[a] = omega[a] * omega[a];
         }
-        self.coupled_sums(ws, scratch, junk, cos_w2);
-        self.coupled_sums(ws, accel, sin_acc, junk);
-        scratch.fill(0.0);
+        self.coupled_sums(ws, scratch, junk, cos_sums);
+        self.coupled_sums(ws, accel, sin_sums, junk);
+        self.factor(sh, ws)
+    }
+
+    /// The mass matrix's factorisation into `ws` (the angles' trig there), `G_xx` into `sh`.
+    fn factor(&self, sh: &mut Shared, ws: &mut Workspace) -> std::result::Result<(), Singular> {
+        sh.scratch.fill(0.0);
         sh.gxx = self.eliminate(ws, &mut sh.scratch, |_, _, _| 0.0)?.gxx;
         Ok(())
     }
 
-    /// [`Chain::tangent_forced`] after [`Chain::share`]: `d theta_ddot` into `out`, `d x_ddot`
-    /// returned.
+    /// Solve `M x = r` for `k = rows.len()` right-hand sides at once with the factorisation in
+    /// `ws` (no divisions): column `c`'s `x` (holding `r`) at `xs[c * stride + off..][..n]`, its
+    /// cart row `rows[c]` (the cart's own right-hand side), replaced by the base's acceleration
+    /// along x, `(row - w_x)` over the cart's articulated inertia (0 without a cart). Each
+    /// column's arithmetic is that of [`Chain::eliminate`] and [`Chain::substitute_from`];
+    /// side by side, the columns' chains of dependent operations (each link waits on the sums
+    /// of the links before it) overlap instead of running one after another. `at`: `(stride,
+    /// off)`.
+    fn solve_factored_many(&self, sh: &Shared, ws: &Workspace, xs: &mut [f64], at: (usize, usize), rows: &mut [f64]) -> std::result::Result<(), Singular> {
+        let k = rows.len();
+        let mut first = 0;
+        // Four columns at a time, their running sums in registers; then the one to three left.
+        while first < k {
+            match k - first {
+                1 => self.solve_block::<1>(sh, ws, xs, at, first, rows)?,
+                2 => self.solve_block::<2>(sh, ws, xs, at, first, rows)?,
+                3 => self.solve_block::<3>(sh, ws, xs, at, first, rows)?,
+                _ => self.solve_block::<4>(sh, ws, xs, at, first, rows)?,
+            }
+            first += (k - first).min(4);
+        }
+        Ok(())
+    }
+
+    /// [`Chain::solve_factored_many`] for the `B` columns from `first` on.
+    #[inline(always)]
+    fn solve_block<const B: usize>(
+        &self,
+        sh: &Shared,
+        ws: &Workspace,
+        xs: &mut [f64],
+        (stride, off): (usize, usize),
+        first: usize,
+        rows: &mut [f64],
+    ) -> std::result::Result<(), Singular> {
+        let n = self.n();
+        let (l, s, c) = (&self.lengths[..n], &ws.sin[..n], &ws.cos[..n]);
+        let (u, dinv) = (&ws.u[..n], &ws.dinv[..n]);
+        let mut start = [0; B];
+        for (j, at) in start.iter_mut().enumerate() {
+            *at = (first + j) * stride + off;
+        }
+        let (mut wx, mut wy) = ([0.0; B], [0.0; B]);
+        for a in (0..n).rev() {
+            for j in 0..B {
+                let x = &mut xs[start[j] + a];
+                let rho = *x - l[a] * (c[a] * wx[j] + s[a] * wy[j]);
+                wx[j] += u[a][0] * rho * dinv[a];
+                wy[j] += u[a][1] * rho * dinv[a];
+                *x = rho;
+            }
+        }
+        for j in 0..B {
+            let row = &mut rows[first + j];
+            *row = match self.cart {
+                Some(_) => (*row - wx[j]) / self.cart_inertia(super::Articulated { gxx: sh.gxx, wx: wx[j] })?,
+                None => 0.0,
+            };
+            // The substitution's prefix sums start at the base's acceleration (`substitute_from`).
+            (wx[j], wy[j]) = (*row, 0.0);
+        }
+        for a in 0..n {
+            for j in 0..B {
+                let x = &mut xs[start[j] + a];
+                let xa = (*x - (u[a][0] * wx[j] + u[a][1] * wy[j])) * dinv[a];
+                *x = xa;
+                wx[j] += l[a] * c[a] * xa;
+                wy[j] += l[a] * s[a] * xa;
+            }
+        }
+        Ok(())
+    }
+
+    /// Fill `sh` for [`Chain::hamilton_tangent_shared`] at rates `omega` (the angles' trig in
+    /// `ws`) and factor the mass matrix into `ws`.
+    fn hamilton_share(&self, omega: &[f64], sh: &mut Shared, ws: &mut Workspace) -> std::result::Result<(), Singular> {
+        let n = self.n();
+        self.coupled_sums(ws, &omega[..n], &mut sh.sin_sums, &mut sh.cos_sums);
+        self.factor(sh, ws)
+    }
+
+    /// [`Chain::hamilton_tangent_forced`] after [`Chain::hamilton_share`]: the same equations,
+    /// the shared sums and factorisation reused, in three parts (so that the solves of many
+    /// directions can run side by side, [`Chain::solve_factored_many`]):
+    /// [`Chain::hamilton_tangent_rhs`], the solve, [`Chain::hamilton_tangent_finish`].
+    /// `scratch` holds 5 N values. One direction at a time: [`Columns::rates`] runs the parts
+    /// over all its directions; the tests hold this against the unshared tangent.
+    #[cfg(test)]
+    #[allow(clippy::too_many_arguments)]
+    fn hamilton_tangent_shared(
+        &self,
+        rates: (&[f64], f64),
+        gravity: [f64; 2],
+        direction: (&[f64], &[f64], f64),
+        forcing: Option<(&[f64], f64, &[f64])>,
+        sh: &Shared,
+        d_omega: &mut [f64],
+        d_pdot: &mut [f64],
+        scratch: &mut [f64],
+        ws: &Workspace,
+    ) -> std::result::Result<(f64, f64), Singular> {
+        let mut row = [self.hamilton_tangent_rhs(rates, gravity, direction, forcing, sh, d_omega, d_pdot, scratch, ws)];
+        self.solve_factored_many(sh, ws, &mut d_omega[..self.n()], (0, 0), &mut row)?;
+        Ok(self.hamilton_tangent_finish(rates, row[0], sh, d_omega, d_pdot, scratch, ws))
+    }
+
+    /// The first part of [`Chain::hamilton_tangent_shared`]: the right-hand side of
+    /// `M d(v, omega) = d(p_x, p) - (dM)(v, omega)` into `d_omega` (its cart row returned), and
+    /// the terms of `d p_dot` that do not depend on `d omega` into `d_pdot`.
+    #[allow(clippy::too_many_arguments)]
+    fn hamilton_tangent_rhs(
+        &self,
+        (omega, v): (&[f64], f64),
+        gravity: [f64; 2],
+        (d_theta, d_p, d_px): (&[f64], &[f64], f64),
+        forcing: Option<(&[f64], f64, &[f64])>,
+        sh: &Shared,
+        d_omega: &mut [f64],
+        d_pdot: &mut [f64],
+        scratch: &mut [f64],
+        ws: &Workspace,
+    ) -> f64 {
+        let n = self.n();
+        let (u, rest) = scratch.split_at_mut(n);
+        let (s_tw, rest) = rest.split_at_mut(n);
+        let (c_tw, _) = rest.split_at_mut(n);
+        let (s_w, c_w) = (&sh.sin_sums[..n], &sh.cos_sums[..n]);
+        let (h, [gx, gy]) = (&self.h[..n], gravity);
+        let (sin, cos) = (&ws.sin[..n], &ws.cos[..n]);
+        let (d_omega, d_pdot) = (&mut d_omega[..n], &mut d_pdot[..n]);
+        for a in 0..n {
+            u[a] = d_theta[a] * omega[a];
+        }
+        self.coupled_sums(ws, u, s_tw, c_tw);
+        let mut row = d_px;
+        for a in 0..n {
+            let (s, c) = (sin[a], cos[a]);
+            d_omega[a] = d_p[a] + d_theta[a] * s_w[a] - s_tw[a] + h[a] * s * d_theta[a] * v;
+            row += h[a] * s * d_theta[a] * omega[a];
+            d_pdot[a] = h[a] * (gy * c - gx * s) * d_theta[a] - omega[a] * (d_theta[a] * c_w[a] - c_tw[a]) - h[a] * v * c * d_theta[a] * omega[a];
+        }
+        if let Some((dp, dp_x, dpdot)) = forcing {
+            for a in 0..n {
+                d_omega[a] -= dp[a];
+                d_pdot[a] += dpdot[a];
+            }
+            row -= dp_x;
+        }
+        row
+    }
+
+    /// The last part of [`Chain::hamilton_tangent_shared`], once `d_omega` and the cart's `dv`
+    /// are solved: the rest of `d p_dot`; returns `(dv, d p_x_dot)`.
+    #[allow(clippy::too_many_arguments)]
+    fn hamilton_tangent_finish(
+        &self,
+        (omega, v): (&[f64], f64),
+        dv: f64,
+        sh: &Shared,
+        d_omega: &[f64],
+        d_pdot: &mut [f64],
+        scratch: &mut [f64],
+        ws: &Workspace,
+    ) -> (f64, f64) {
+        let n = self.n();
+        let (s_dw, rest) = scratch.split_at_mut(n);
+        let (c_dw, _) = rest.split_at_mut(n);
+        let (h, s_w, sin) = (&self.h[..n], &sh.sin_sums[..n], &ws.sin[..n]);
+        let (d_omega, d_pdot) = (&d_omega[..n], &mut d_pdot[..n]);
+        self.coupled_sums(ws, d_omega, s_dw, c_dw);
+        for a in 0..n {
+            let s = sin[a];
+            d_pdot[a] -= d_omega[a] * s_w[a] + omega[a] * s_dw[a] + h[a] * (dv * s * omega[a] + v * s * d_omega[a]);
+        }
+        if self.lossy_joints() {
+            self.add_loss_tangent(&omega[..n], d_omega, d_pdot);
+        }
+        (dv, self.cart.map_or(0.0, |cart| -cart.damping * dv))
+    }
+
+    /// [`Chain::tangent_general`] (with a parameter's forcing) after [`Chain::share`]: `d theta_ddot` into `out`, `d x_ddot`
+    /// returned. One direction at a time: [`Columns::rates`] builds every direction's right-hand
+    /// side ([`Chain::tangent_shared_rhs`]) and solves them side by side; the tests hold this
+    /// against the unshared tangent.
+    #[cfg(test)]
     #[allow(clippy::too_many_arguments)]
     fn tangent_shared(
+        &self,
+        omega: &[f64],
+        rates: (&[f64], f64),
+        gravity: [f64; 2],
+        direction: (&[f64], &[f64], f64),
+        forcing: Option<(&[f64], f64)>,
+        sh: &Shared,
+        out: &mut [f64],
+        ws: &Workspace,
+    ) -> std::result::Result<f64, Singular> {
+        let mut row = [self.tangent_shared_rhs(omega, rates, gravity, direction, forcing, sh, out, ws)];
+        self.solve_factored_many(sh, ws, out, (0, 0), &mut row)?;
+        Ok(row[0])
+    }
+
+    /// The right-hand side `M d q_ddot = r` of [`Chain::tangent_shared`] into `out`, its cart row
+    /// returned (0 without a cart), for [`Chain::solve_factored`] (one direction) or
+    /// [`Chain::solve_factored_many`] (all of them).
+    #[allow(clippy::too_many_arguments)]
+    fn tangent_shared_rhs(
         &self,
         omega: &[f64],
         (accel, x_ddot): (&[f64], f64),
@@ -404,12 +616,12 @@ impl Chain {
         sh: &Shared,
         out: &mut [f64],
         ws: &Workspace,
-    ) -> std::result::Result<f64, Singular> {
+    ) -> f64 {
         let n = self.n();
         let (l, h, s, c) = (&self.lengths[..n], &self.h[..n], &ws.sin[..n], &ws.cos[..n]);
         let [gx, gy] = gravity;
         let cart = self.cart.is_some();
-        // d(rhs) = (gravity) d theta - d theta cos_w2 + d theta sin_acc + cos(d theta omega^2)
+        // d(rhs) = (gravity) d theta - d theta cos_sums + d theta sin_sums + cos(d theta omega^2)
         //          - sin(2 omega d omega + d theta accel), the last two in one pass each way:
         // with u = d theta omega^2 and w = 2 omega d omega + d theta accel, the coupled sums
         // combine into sum l (u c + w s, u s - w c) from above and sum h (...) from below.
@@ -419,7 +631,7 @@ impl Chain {
             let (sa, ca, dth) = (s[a], c[a], d_theta[a]);
             let u = dth * omega[a] * omega[a];
             let w = 2.0 * omega[a] * d_omega[a] + dth * accel[a];
-            out[a] = (gy * h[a] * ca - gx * h[a] * sa) * dth - dth * sh.cos_w2[a] + dth * sh.sin_acc[a] + h[a] * (ca * pa + sa * pb);
+            out[a] = (gy * h[a] * ca - gx * h[a] * sa) * dth - dth * sh.cos_sums[a] + dth * sh.sin_sums[a] + h[a] * (ca * pa + sa * pb);
             if cart {
                 out[a] += h[a] * sa * dth * x_ddot;
                 row += h[a] * (ca * u + sa * w);
@@ -445,21 +657,10 @@ impl Chain {
             }
             row += b_x;
         }
-        // The solve with the factorisation in `ws` (no divisions).
-        let (u, dinv) = (&ws.u[..n], &ws.dinv[..n]);
-        let (mut wx, mut wy) = (0.0, 0.0);
-        for a in (0..n).rev() {
-            let rho = out[a] - l[a] * (c[a] * wx + s[a] * wy);
-            wx += u[a][0] * rho * dinv[a];
-            wy += u[a][1] * rho * dinv[a];
-            out[a] = rho;
-        }
-        let d_x_ddot = match self.cart {
-            Some(cart) => (row - cart.damping * d_v - wx) / self.cart_inertia(super::Articulated { gxx: sh.gxx, wx })?,
+        match self.cart {
+            Some(cart) => row - cart.damping * d_v,
             None => 0.0,
-        };
-        self.substitute_from(ws, out, d_x_ddot, |_, _, _, _| {});
-        Ok(d_x_ddot)
+        }
     }
 }
 
@@ -475,6 +676,8 @@ pub struct Columns {
     ws: Workspace,
     scratch: Vec<f64>,
     zero: Vec<f64>,
+    /// Per column: the cart's row of the solve.
+    rows: Vec<f64>,
 }
 
 impl Columns {
@@ -482,7 +685,6 @@ impl Columns {
         let n = chain.n();
         let mech = 2 * n + if chain.cart.is_some() { 2 } else { 0 };
         Columns {
-            dirs,
             form,
             mech,
             sc: Scratch::new(chain),
@@ -490,6 +692,8 @@ impl Columns {
             ws: Workspace::new(n),
             scratch: vec![0.0; TANGENT_SCRATCH * n],
             zero: vec![0.0; n],
+            rows: vec![0.0; dirs.len()],
+            dirs,
         }
     }
 
@@ -503,12 +707,14 @@ impl Columns {
     }
 
     /// The rates `out` of the columns `cols` at the mechanical state `y` with rates `dy` (the
-    /// system's right-hand side there): `dS/dt = J S + df/dP`, O(N) per column.
+    /// system's right-hand side there): `dS/dt = J S + df/dP`, O(N) per column. The columns
+    /// share the state's trig, coupled sums and factorisation; each builds its right-hand side,
+    /// then all are solved side by side, then (Hamiltonian form) each finishes its `d p_dot`.
     pub fn rates(&mut self, chain: &Chain, load: &Load, y: &[f64], dy: &[f64], cols: &[f64], out: &mut [f64]) -> std::result::Result<(), Singular> {
         let n = chain.n();
         let m = self.mech;
         let cart = chain.cart.is_some();
-        let Columns { dirs, sc, shared, ws, scratch, .. } = self;
+        let Columns { dirs, sc, shared, ws, scratch, rows, .. } = self;
         // The parameters' forcings need their fields; the initial state's directions do not.
         let params = dirs.iter().any(|d| matches!(d, Direction::Param(_)));
         let theta = &y[..n];
@@ -530,7 +736,7 @@ impl Columns {
                     let dv = if cart { col[2 * n + 1] } else { 0.0 };
                     let (head, tail) = o.split_at_mut(n);
                     head.copy_from_slice(&col[n..2 * n]);
-                    let dx = chain.tangent_shared(
+                    rows[c] = chain.tangent_shared_rhs(
                         omega,
                         (accel, x_ddot),
                         load.gravity,
@@ -539,10 +745,15 @@ impl Columns {
                         shared,
                         &mut tail[..n],
                         ws,
-                    )?;
+                    );
                     if cart {
                         o[2 * n] = dv;
-                        o[2 * n + 1] = dx;
+                    }
+                }
+                chain.solve_factored_many(shared, ws, out, (m, n), rows)?;
+                if cart {
+                    for (c, &dx) in rows.iter().enumerate() {
+                        out[c * m + 2 * n + 1] = dx;
                     }
                 }
             }
@@ -552,6 +763,7 @@ impl Columns {
                 if params {
                     chain.prepare_forcing(&At::Hamiltonian { omega, v }, load, sc, ws);
                 }
+                chain.hamilton_share(omega, shared, ws)?;
                 for (c, dir) in dirs.iter().enumerate() {
                     let (col, o) = (&cols[c * m..(c + 1) * m], &mut out[c * m..(c + 1) * m]);
                     let dpx = match *dir {
@@ -560,17 +772,23 @@ impl Columns {
                     };
                     let d_px = if cart { col[2 * n + 1] } else { 0.0 };
                     let (head, tail) = o.split_at_mut(n);
-                    let (dv, dpxd) = chain.hamilton_tangent_forced(
-                        theta,
+                    rows[c] = chain.hamilton_tangent_rhs(
                         (omega, v),
                         load.gravity,
                         (&col[..n], &col[n..2 * n], d_px),
                         dpx.map(|dpx| (&sc.dp[..], dpx, &sc.dpdot[..])),
+                        shared,
                         head,
                         &mut tail[..n],
                         scratch,
                         ws,
-                    )?;
+                    );
+                }
+                chain.solve_factored_many(shared, ws, out, (m, 0), rows)?;
+                for (c, &dv) in rows.iter().enumerate() {
+                    let o = &mut out[c * m..(c + 1) * m];
+                    let (head, tail) = o.split_at_mut(n);
+                    let (dv, dpxd) = chain.hamilton_tangent_finish((omega, v), dv, shared, head, &mut tail[..n], scratch, ws);
                     if cart {
                         o[2 * n] = dv;
                         o[2 * n + 1] = dpxd;
@@ -787,6 +1005,43 @@ mod tests {
                 assert!((got[a] - want[a]).abs() < 1e-13 * want[a].abs().max(1.0), "{a}: {} vs {}", got[a], want[a]);
             }
             assert!((dx - dx0).abs() < 1e-13 * dx0.abs().max(1.0));
+        }
+    }
+
+    #[test]
+    fn the_shared_hamiltonian_tangent_is_the_general_one() {
+        let (theta, omega, v) = ([0.4, -1.1, 2.0], [0.7, -0.3, 1.5], 0.35);
+        let (dth, dp, dpx) = ([0.2, -0.5, 0.3], [0.1, 0.4, -0.6], 0.7);
+        for chain in chains() {
+            let n = chain.n();
+            let load = Load { gravity: [1.3, -9.0], cart_force: 0.5 };
+            let mut sc = Scratch::new(&chain);
+            let mut ws = Workspace::new(n);
+            chain.trig(&theta, &mut ws);
+            chain.prepare_forcing(&At::Hamiltonian { omega: &omega, v }, &load, &mut sc, &ws);
+            // Along a direction of the state alone, and with a parameter's forcing on top.
+            for param in [None, Some(Param::Length(1)), Some(Param::Gravity)] {
+                let forcing = param.map(|p| {
+                    let bx = chain.hamiltonian_forcing(&omega, p, &mut sc);
+                    (sc.dp.clone(), bx, sc.dpdot.clone())
+                });
+                let forcing = forcing.as_ref().map(|(a, b, c)| (&a[..], *b, &c[..]));
+                let (mut w0, mut pd0, mut w1, mut pd1) = (vec![0.0; n], vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+                let mut scratch = vec![0.0; TANGENT_SCRATCH * n];
+                let want = chain
+                    .hamilton_tangent_forced(&theta, (&omega, v), load.gravity, (&dth, &dp, dpx), forcing, &mut w0, &mut pd0, &mut scratch, &mut ws)
+                    .unwrap();
+                let mut sh = Shared::new(n);
+                chain.hamilton_share(&omega, &mut sh, &mut ws).unwrap();
+                let got = chain
+                    .hamilton_tangent_shared((&omega, v), load.gravity, (&dth, &dp, dpx), forcing, &sh, &mut w1, &mut pd1, &mut scratch, &ws)
+                    .unwrap();
+                for a in 0..n {
+                    assert!((w1[a] - w0[a]).abs() < 1e-13 * w0[a].abs().max(1.0), "{param:?} d omega {a}: {} vs {}", w1[a], w0[a]);
+                    assert!((pd1[a] - pd0[a]).abs() < 1e-13 * pd0[a].abs().max(1.0), "{param:?} d p_dot {a}: {} vs {}", pd1[a], pd0[a]);
+                }
+                assert!((got.0 - want.0).abs() < 1e-13 * want.0.abs().max(1.0) && (got.1 - want.1).abs() < 1e-13 * want.1.abs().max(1.0));
+            }
         }
     }
 
