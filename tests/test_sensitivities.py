@@ -112,6 +112,16 @@ def test_with_losses_and_a_cart(kind, method):
     check(kind, 2, method, names)
 
 
+@pytest.mark.parametrize("method", ["rk4", "gauss6"])
+@pytest.mark.parametrize("n", [2, 3])
+def test_directions_that_need_no_fields(n, method):
+    # g, the inertias and the losses alone: the run skips the fields that lengths, masses and
+    # centres of mass need (N = 2 and 3: the closed form and the recursion; both forms), with
+    # and without a cart.
+    for kind in ("damped", "cart_damped"):
+        check(kind, n, method, ["g", "inertia", "damping", "friction"])
+
+
 @pytest.mark.parametrize("n", [1, 3])
 def test_any_number_of_links(n):
     check("general", n, "rk4", ["theta0", "omega0"] + PARAMETERS)

@@ -157,6 +157,9 @@ pub struct Scratch {
     pub(crate) b: Vec<f64>,
     pub(crate) dp: Vec<f64>,
     pub(crate) dpdot: Vec<f64>,
+    /// Whether some direction needs the fields themselves (a length, mass or centre of mass);
+    /// g, the inertias and the losses need only the projections ([`Chain::prepare_forcing`]).
+    fields: bool,
 }
 
 impl Scratch {
@@ -175,7 +178,14 @@ impl Scratch {
             b: vec![0.0; n],
             dp: vec![0.0; n],
             dpdot: vec![0.0; n],
+            fields: true,
         }
+    }
+
+    /// For the directions `dirs` only: the fields are then filled only if one needs them.
+    fn for_directions(chain: &Chain, dirs: &[Direction]) -> Self {
+        let fields = dirs.iter().any(|d| matches!(d, Direction::Param(Param::Length(_) | Param::Mass(_) | Param::Com(_))));
+        Scratch { fields, ..Scratch::new(chain) }
     }
 }
 
@@ -187,8 +197,13 @@ pub(crate) enum At<'a> {
 }
 
 impl Chain {
-    /// `X_i` and its suffix sums for `K` (in `f.k`) and base `base`.
-    fn fill_field(&self, f: &mut Field, base: [f64; 2], dbase_g: [f64; 2]) {
+    /// `X_i` and its suffix sums for `K` (in `f.k`) and base `base` (if `fields`; `d B / d g`
+    /// always).
+    fn fill_field(&self, f: &mut Field, base: [f64; 2], dbase_g: [f64; 2], fields: bool) {
+        f.dbase_g = dbase_g;
+        if !fields {
+            return;
+        }
         let n = self.n();
         let mut alpha = base;
         for i in 0..n {
@@ -201,7 +216,6 @@ impl Chain {
             let m = self.masses[i];
             f.phi[i] = [f.phi[i + 1][0] + m * f.x[i][0], f.phi[i + 1][1] + m * f.x[i][1]];
         }
-        f.dbase_g = dbase_g;
     }
 
     /// Add `d Y_a / d param` (projections `proj`) to `out`; returns `d Z / d param`. O(N).
@@ -270,25 +284,28 @@ impl Chain {
         let n = self.n();
         let (s, c) = (&ws.sin[..n], &ws.cos[..n]);
         let [gx, gy] = load.gravity;
+        let fields = sc.fields;
         for a in 0..n {
             sc.proj[a] = [c[a], s[a]];
         }
         match *at {
             At::Lagrangian { omega, accel, x_ddot } => {
-                for a in 0..n {
-                    let (dd, w2) = (accel[a], omega[a] * omega[a]);
-                    sc.field.k[a] = [dd * c[a] - w2 * s[a], dd * s[a] + w2 * c[a]];
+                if fields {
+                    for a in 0..n {
+                        let (dd, w2) = (accel[a], omega[a] * omega[a]);
+                        sc.field.k[a] = [dd * c[a] - w2 * s[a], dd * s[a] + w2 * c[a]];
+                    }
                 }
-                self.fill_field(&mut sc.field, [x_ddot - gx, -gy], [0.0, 1.0]);
+                self.fill_field(&mut sc.field, [x_ddot - gx, -gy], [0.0, 1.0], fields);
             }
             At::Hamiltonian { omega, v } => {
                 for a in 0..n {
                     sc.field.k[a] = [omega[a] * c[a], omega[a] * s[a]];
                     sc.kin[a] = [-omega[a] * s[a], omega[a] * c[a]];
                 }
-                self.fill_field(&mut sc.field, [v, 0.0], [0.0, 0.0]);
+                self.fill_field(&mut sc.field, [v, 0.0], [0.0, 0.0], fields);
                 sc.gravity.k.fill([0.0; 2]);
-                self.fill_field(&mut sc.gravity, [gx, gy], [0.0, -1.0]);
+                self.fill_field(&mut sc.gravity, [gx, gy], [0.0, -1.0], fields);
             }
         }
     }
@@ -382,7 +399,14 @@ impl Shared {
 
 impl Chain {
     /// Fill `sh` at a state (the angles' trig in `ws`) and factor the mass matrix into `ws`.
+    #[cfg(test)]
     fn share(&self, omega: &[f64], accel: &[f64], sh: &mut Shared, ws: &mut Workspace) -> std::result::Result<(), Singular> {
+        self.sums(omega, accel, sh, ws);
+        self.factor(sh, ws)
+    }
+
+    /// The Lagrangian tangent's coupled sums into `sh` (the angles' trig in `ws`).
+    fn sums(&self, omega: &[f64], accel: &[f64], sh: &mut Shared, ws: &Workspace) {
         let n = self.n();
         let Shared { cos_sums, sin_sums, scratch, junk, .. } = sh;
         for a in 0..n {
@@ -390,7 +414,18 @@ impl Chain {
         }
         self.coupled_sums(ws, scratch, junk, cos_sums);
         self.coupled_sums(ws, accel, sin_sums, junk);
-        self.factor(sh, ws)
+    }
+
+    /// `G_xx` of the factorisation in `ws`, summed as [`Chain::eliminate`] sums it (the same
+    /// bits), for a factorisation another evaluation left there.
+    fn factored_gxx(&self, ws: &Workspace) -> f64 {
+        let n = self.n();
+        let (u, dinv) = (&ws.u[..n], &ws.dinv[..n]);
+        let mut gxx = 0.0;
+        for a in (0..n).rev() {
+            gxx += u[a][0] * u[a][0] * dinv[a];
+        }
+        gxx
     }
 
     /// The mass matrix's factorisation into `ws` (the angles' trig there), `G_xx` into `sh`.
@@ -475,10 +510,16 @@ impl Chain {
 
     /// Fill `sh` for [`Chain::hamilton_tangent_shared`] at rates `omega` (the angles' trig in
     /// `ws`) and factor the mass matrix into `ws`.
+    #[cfg(test)]
     fn hamilton_share(&self, omega: &[f64], sh: &mut Shared, ws: &mut Workspace) -> std::result::Result<(), Singular> {
+        self.hamilton_sums(omega, sh, ws);
+        self.factor(sh, ws)
+    }
+
+    /// The Hamiltonian tangent's coupled sums (of `omega`) into `sh`.
+    fn hamilton_sums(&self, omega: &[f64], sh: &mut Shared, ws: &Workspace) {
         let n = self.n();
         self.coupled_sums(ws, &omega[..n], &mut sh.sin_sums, &mut sh.cos_sums);
-        self.factor(sh, ws)
     }
 
     /// [`Chain::hamilton_tangent_forced`] after [`Chain::hamilton_share`]: the same equations,
@@ -687,7 +728,7 @@ impl Columns {
         Columns {
             form,
             mech,
-            sc: Scratch::new(chain),
+            sc: Scratch::for_directions(chain, &dirs),
             shared: Shared::new(n),
             ws: Workspace::new(n),
             scratch: vec![0.0; TANGENT_SCRATCH * n],
@@ -710,15 +751,39 @@ impl Columns {
     /// system's right-hand side there): `dS/dt = J S + df/dP`, O(N) per column. The columns
     /// share the state's trig, coupled sums and factorisation; each builds its right-hand side,
     /// then all are solved side by side, then (Hamiltonian form) each finishes its `d p_dot`.
-    pub fn rates(&mut self, chain: &Chain, load: &Load, y: &[f64], dy: &[f64], cols: &[f64], out: &mut [f64]) -> std::result::Result<(), Singular> {
+    /// `factored`: the workspace of the system's evaluation at `y` if it holds the angles' trig
+    /// and the factorisation there ([`crate::dynamics::system::ChainSystem::factored`]), which
+    /// are then not computed again; else they are computed here.
+    #[allow(clippy::too_many_arguments)]
+    pub fn rates(
+        &mut self,
+        chain: &Chain,
+        load: &Load,
+        y: &[f64],
+        dy: &[f64],
+        cols: &[f64],
+        out: &mut [f64],
+        factored: Option<&Workspace>,
+    ) -> std::result::Result<(), Singular> {
         let n = chain.n();
         let m = self.mech;
         let cart = chain.cart.is_some();
-        let Columns { dirs, sc, shared, ws, scratch, rows, .. } = self;
+        let Columns { dirs, sc, shared, ws: own, scratch, rows, .. } = self;
         // The parameters' forcings need their fields; the initial state's directions do not.
         let params = dirs.iter().any(|d| matches!(d, Direction::Param(_)));
-        let theta = &y[..n];
-        chain.trig(theta, ws);
+        let ws: &Workspace = match factored {
+            Some(ws) => {
+                if cart {
+                    shared.gxx = chain.factored_gxx(ws);
+                }
+                ws
+            }
+            None => {
+                chain.trig(&y[..n], own);
+                chain.factor(shared, own)?;
+                own
+            }
+        };
         match self.form {
             Form::Lagrangian => {
                 let (omega, accel) = (&y[n..2 * n], &dy[n..2 * n]);
@@ -726,7 +791,7 @@ impl Columns {
                 if params {
                     chain.prepare_forcing(&At::Lagrangian { omega, accel, x_ddot }, load, sc, ws);
                 }
-                chain.share(omega, accel, shared, ws)?;
+                chain.sums(omega, accel, shared, ws);
                 for (c, dir) in dirs.iter().enumerate() {
                     let (col, o) = (&cols[c * m..(c + 1) * m], &mut out[c * m..(c + 1) * m]);
                     let forcing = match *dir {
@@ -763,7 +828,7 @@ impl Columns {
                 if params {
                     chain.prepare_forcing(&At::Hamiltonian { omega, v }, load, sc, ws);
                 }
-                chain.hamilton_share(omega, shared, ws)?;
+                chain.hamilton_sums(omega, shared, ws);
                 for (c, dir) in dirs.iter().enumerate() {
                     let (col, o) = (&cols[c * m..(c + 1) * m], &mut out[c * m..(c + 1) * m]);
                     let dpx = match *dir {
@@ -1041,6 +1106,36 @@ mod tests {
                     assert!((pd1[a] - pd0[a]).abs() < 1e-13 * pd0[a].abs().max(1.0), "{param:?} d p_dot {a}: {} vs {}", pd1[a], pd0[a]);
                 }
                 assert!((got.0 - want.0).abs() < 1e-13 * want.0.abs().max(1.0) && (got.1 - want.1).abs() < 1e-13 * want.1.abs().max(1.0));
+            }
+        }
+    }
+
+    #[test]
+    fn columns_reusing_the_systems_factorisation_keep_their_bits() {
+        use crate::dynamics::system::{ChainSystem, OdeSystem};
+        use crate::dynamics::torque::Builtin;
+        // Every path that leaves its factorisation (N = 3: the ideal, the lossy and the cart's
+        // recursions, both forms; N = 2 in the Hamiltonian form) and one that does not.
+        let two = Chain::new(&[1.0, 0.7], &[1.2, 0.8], Some(&[0.6, 0.3]), Some(&[0.05, 0.02]), 9.81).unwrap();
+        for chain in chains().into_iter().chain([two]) {
+            let n = chain.n();
+            for form in Form::ALL {
+                let mut sys = ChainSystem::new(&chain, Builtin::None, form);
+                let b = sys.dim();
+                let y: Vec<f64> = (0..b).map(|i| [0.4, -1.1, 2.0, 0.7, -0.3, 1.5, 0.2, -0.6][i % 8]).collect();
+                let mut dy = vec![0.0; b];
+                sys.rhs(0.0, &y, &mut dy).unwrap();
+                let dirs = directions(&[Input::Theta0, Input::Omega0, Input::Lengths, Input::G], n).unwrap();
+                let mut cols = Columns::new(&chain, form, dirs);
+                let s: Vec<f64> = (0..cols.len()).map(|i| ((i * 7 % 11) as f64 - 5.0) / 3.0).collect();
+                let (mut reused, mut own) = (vec![0.0; cols.len()], vec![0.0; cols.len()]);
+                let load = sys.last_load();
+                let factored = sys.factored();
+                assert_eq!(factored.is_some(), form == Form::Hamiltonian || n != 2);
+                cols.rates(&chain, &load, &y, &dy, &s, &mut reused, factored).unwrap();
+                cols.rates(&chain, &load, &y, &dy, &s, &mut own, None).unwrap();
+                let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&reused), bits(&own), "N = {n}, {form:?}, cart {}", chain.cart.is_some());
             }
         }
     }

@@ -235,6 +235,14 @@ impl<C: Borrow<Chain>, T: TorqueSource> ChainSystem<C, T> {
         self.last_load
     }
 
+    /// The workspace of the last evaluation of the right-hand side, when it holds that state's
+    /// angles' trig and mass-matrix factorisation: every path but the Lagrangian double
+    /// pendulum's closed forms (which take the pair's trig inline and solve 2 x 2). What rides
+    /// along the state (the sensitivity columns) reuses them.
+    pub fn factored(&self) -> Option<&Workspace> {
+        (self.form == Form::Hamiltonian || self.chain.borrow().n() != 2).then_some(&self.ws)
+    }
+
     /// Whether the torque is a feedback of the state.
     pub fn torque_uses_state(&self) -> bool {
         self.torque.uses_state()

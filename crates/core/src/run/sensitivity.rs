@@ -124,7 +124,8 @@ impl<T: TorqueSource> OdeSystem for Sensitive<'_, T> {
         // function is called once per evaluation).
         let load = self.sys.last_load();
         let chain = self.chain;
-        self.cols.rates(chain, &load, &y[..b], dy_state, &y[b..], dy_cols).map_err(|s| singular(t, y, s))
+        let factored = self.sys.factored();
+        self.cols.rates(chain, &load, &y[..b], dy_state, &y[b..], dy_cols, factored).map_err(|s| singular(t, y, s))
     }
 }
 
