@@ -93,16 +93,17 @@ def section(rows):
                      f"{1e3 * r['seconds']:.3g} | {r['ratio']:.2f} | {r['bound']}{'' if r['met'] else ' (missed)'} |")
     lines += [
         "",
-        "Where it is missed (one direction, and the double pendulum): a direction costs its right-hand side (a fused",
-        "tangent pass; in the Hamiltonian form two coupled sums) and a solve with the factorisation of the chain's own",
-        "evaluation, whose trig and factorisation the columns reuse (every path but the Lagrangian double pendulum's",
-        "closed form), four columns solved side by side. What an evaluation pays once however many directions there are",
-        "(the coupled sums of the state's rates that the directions share, the forcings' fields when a length, mass or",
-        "centre of mass is among them, and the integrator's work on the longer state) comes to about one plain",
-        "right-hand side, so k = 1 lands at or just above its bound of 2. The double pendulum's right-hand side is its",
-        "closed form, several times cheaper than the O(N) recursion its tangent uses, so each of its directions costs",
-        "more than a plain evaluation. The Gauss methods iterate their stages over the columns too (to the same",
-        "round-off; about 15% more fixed-point iterations with 20 directions at N = 10).",
+        "Where it is missed: a direction costs its right-hand side (a fused tangent pass; in the Hamiltonian form two",
+        "coupled sums) and a solve with the evaluation's factorisation, which the columns take from the chain's own",
+        "evaluation with its trig (every path but the Lagrangian double pendulum's closed form); the solves run four",
+        "columns side by side. What an evaluation pays once however many directions there are (the coupled sums of the",
+        "state's rates that the directions share, the forcings' fields when a length, mass or centre of mass is among",
+        "them, the integrator's work on the longer state) comes to about one plain right-hand side, so one direction",
+        "(k = 1) lands near its bound of 2, above it by up to a quarter. On the double pendulum a plain evaluation is",
+        "cheap (the Lagrangian form's closed form; a two-link recursion in the Hamiltonian form), so that shared work",
+        "and the forcings of lengths and masses weigh more: one direction and lengths + masses miss, the initial",
+        "state's directions stay within the bound. The Gauss methods iterate their stages over the columns too (to the",
+        "same round-off; about 15% more fixed-point iterations with 20 directions at N = 10).",
         "",
     ]
     return "\n".join(lines)

@@ -116,8 +116,8 @@ def test_with_losses_and_a_cart(kind, method):
 @pytest.mark.parametrize("n", [2, 3])
 def test_directions_that_need_no_fields(n, method):
     # g, the inertias and the losses alone: the run skips the fields that lengths, masses and
-    # centres of mass need (N = 2 and 3: the closed form and the recursion; both forms), with
-    # and without a cart.
+    # centres of mass need. rk4 in the Lagrangian form (N = 2: its closed form; N = 3: the
+    # recursion), gauss6 in the Hamiltonian form; with and without a cart.
     for kind in ("damped", "cart_damped"):
         check(kind, n, method, ["g", "inertia", "damping", "friction"])
 

@@ -300,11 +300,15 @@ impl Chain {
             }
             At::Hamiltonian { omega, v } => {
                 for a in 0..n {
-                    sc.field.k[a] = [omega[a] * c[a], omega[a] * s[a]];
                     sc.kin[a] = [-omega[a] * s[a], omega[a] * c[a]];
                 }
+                if fields {
+                    for a in 0..n {
+                        sc.field.k[a] = [omega[a] * c[a], omega[a] * s[a]];
+                    }
+                    sc.gravity.k.fill([0.0; 2]);
+                }
                 self.fill_field(&mut sc.field, [v, 0.0], [0.0, 0.0], fields);
-                sc.gravity.k.fill([0.0; 2]);
                 self.fill_field(&mut sc.gravity, [gx, gy], [0.0, -1.0], fields);
             }
         }
@@ -386,14 +390,13 @@ pub(crate) struct Shared {
     cos_sums: Vec<f64>,
     sin_sums: Vec<f64>,
     scratch: Vec<f64>,
-    junk: Vec<f64>,
     /// The cart's articulated inertia term `G_xx` of the factorisation.
     gxx: f64,
 }
 
 impl Shared {
     fn new(n: usize) -> Self {
-        Shared { cos_sums: vec![0.0; n], sin_sums: vec![0.0; n], scratch: vec![0.0; n], junk: vec![0.0; n], gxx: 0.0 }
+        Shared { cos_sums: vec![0.0; n], sin_sums: vec![0.0; n], scratch: vec![0.0; n], gxx: 0.0 }
     }
 }
 
@@ -405,15 +408,33 @@ impl Chain {
         self.factor(sh, ws)
     }
 
-    /// The Lagrangian tangent's coupled sums into `sh` (the angles' trig in `ws`).
+    /// The Lagrangian tangent's coupled sums into `sh` (the angles' trig in `ws`): the cosine
+    /// part of [`Chain::coupled_sums`] of `omega^2` and the sine part of the accelerations', in
+    /// one pass each way (each value's arithmetic that of `coupled_sums`, so the same bits).
     fn sums(&self, omega: &[f64], accel: &[f64], sh: &mut Shared, ws: &Workspace) {
         let n = self.n();
-        let Shared { cos_sums, sin_sums, scratch, junk, .. } = sh;
+        let (l, h, s, c) = (&self.lengths[..n], &self.h[..n], &ws.sin[..n], &ws.cos[..n]);
+        let Shared { cos_sums, sin_sums, scratch: w2, .. } = sh;
+        let (cos_sums, sin_sums, w2, accel) = (&mut cos_sums[..n], &mut sin_sums[..n], &mut w2[..n], &accel[..n]);
+        let (mut pc, mut ps, mut ac, mut as_) = (0.0, 0.0, 0.0, 0.0);
         for a in 0..n {
-            scratch[a] = omega[a] * omega[a];
+            w2[a] = omega[a] * omega[a];
+            cos_sums[a] = h[a] * (c[a] * pc + s[a] * ps);
+            sin_sums[a] = h[a] * (s[a] * ac - c[a] * as_);
+            pc += l[a] * w2[a] * c[a];
+            ps += l[a] * w2[a] * s[a];
+            ac += l[a] * accel[a] * c[a];
+            as_ += l[a] * accel[a] * s[a];
         }
-        self.coupled_sums(ws, scratch, junk, cos_sums);
-        self.coupled_sums(ws, accel, sin_sums, junk);
+        let (mut qc, mut qs, mut bc, mut bs) = (0.0, 0.0, 0.0, 0.0);
+        for a in (0..n).rev() {
+            cos_sums[a] += l[a] * (c[a] * qc + s[a] * qs);
+            sin_sums[a] += l[a] * (s[a] * bc - c[a] * bs);
+            qc += h[a] * w2[a] * c[a];
+            qs += h[a] * w2[a] * s[a];
+            bc += h[a] * accel[a] * c[a];
+            bs += h[a] * accel[a] * s[a];
+        }
     }
 
     /// `G_xx` of the factorisation in `ws`, summed as [`Chain::eliminate`] sums it (the same
@@ -445,31 +466,37 @@ impl Chain {
     /// off)`.
     fn solve_factored_many(&self, sh: &Shared, ws: &Workspace, xs: &mut [f64], at: (usize, usize), rows: &mut [f64]) -> std::result::Result<(), Singular> {
         let k = rows.len();
+        // The cart's articulated inertia is the same for every column (the factorisation's).
+        let cart = match self.cart {
+            Some(_) => Some(self.cart_inertia(super::Articulated { gxx: sh.gxx, wx: 0.0 })?),
+            None => None,
+        };
         let mut first = 0;
         // Four columns at a time, their running sums in registers; then the one to three left.
         while first < k {
             match k - first {
-                1 => self.solve_block::<1>(sh, ws, xs, at, first, rows)?,
-                2 => self.solve_block::<2>(sh, ws, xs, at, first, rows)?,
-                3 => self.solve_block::<3>(sh, ws, xs, at, first, rows)?,
-                _ => self.solve_block::<4>(sh, ws, xs, at, first, rows)?,
+                1 => self.solve_block::<1>(ws, cart, xs, at, first, rows),
+                2 => self.solve_block::<2>(ws, cart, xs, at, first, rows),
+                3 => self.solve_block::<3>(ws, cart, xs, at, first, rows),
+                _ => self.solve_block::<4>(ws, cart, xs, at, first, rows),
             }
             first += (k - first).min(4);
         }
         Ok(())
     }
 
-    /// [`Chain::solve_factored_many`] for the `B` columns from `first` on.
+    /// [`Chain::solve_factored_many`] for the `B` columns from `first` on; `cart`: the cart's
+    /// articulated inertia, if there is a cart.
     #[inline(always)]
     fn solve_block<const B: usize>(
         &self,
-        sh: &Shared,
         ws: &Workspace,
+        cart: Option<f64>,
         xs: &mut [f64],
         (stride, off): (usize, usize),
         first: usize,
         rows: &mut [f64],
-    ) -> std::result::Result<(), Singular> {
+    ) {
         let n = self.n();
         let (l, s, c) = (&self.lengths[..n], &ws.sin[..n], &ws.cos[..n]);
         let (u, dinv) = (&ws.u[..n], &ws.dinv[..n]);
@@ -489,8 +516,8 @@ impl Chain {
         }
         for j in 0..B {
             let row = &mut rows[first + j];
-            *row = match self.cart {
-                Some(_) => (*row - wx[j]) / self.cart_inertia(super::Articulated { gxx: sh.gxx, wx: wx[j] })?,
+            *row = match cart {
+                Some(inertia) => (*row - wx[j]) / inertia,
                 None => 0.0,
             };
             // The substitution's prefix sums start at the base's acceleration (`substitute_from`).
@@ -505,7 +532,6 @@ impl Chain {
                 wy[j] += l[a] * s[a] * xa;
             }
         }
-        Ok(())
     }
 
     /// Fill `sh` for [`Chain::hamilton_tangent_shared`] at rates `omega` (the angles' trig in
@@ -547,7 +573,7 @@ impl Chain {
         Ok(self.hamilton_tangent_finish(rates, row[0], sh, d_omega, d_pdot, scratch, ws))
     }
 
-    /// The first part of [`Chain::hamilton_tangent_shared`]: the right-hand side of
+    /// The first part of the Hamiltonian tangent after [`Chain::hamilton_sums`]: the right-hand side of
     /// `M d(v, omega) = d(p_x, p) - (dM)(v, omega)` into `d_omega` (its cart row returned), and
     /// the terms of `d p_dot` that do not depend on `d omega` into `d_pdot`.
     #[allow(clippy::too_many_arguments)]
@@ -592,7 +618,7 @@ impl Chain {
         row
     }
 
-    /// The last part of [`Chain::hamilton_tangent_shared`], once `d_omega` and the cart's `dv`
+    /// The last part of the Hamiltonian tangent, once `d_omega` and the cart's `dv`
     /// are solved: the rest of `d p_dot`; returns `(dv, d p_x_dot)`.
     #[allow(clippy::too_many_arguments)]
     fn hamilton_tangent_finish(
@@ -643,9 +669,9 @@ impl Chain {
         Ok(row[0])
     }
 
-    /// The right-hand side `M d q_ddot = r` of [`Chain::tangent_shared`] into `out`, its cart row
-    /// returned (0 without a cart), for [`Chain::solve_factored`] (one direction) or
-    /// [`Chain::solve_factored_many`] (all of them).
+    /// The right-hand side `M d q_ddot = r` of the Lagrangian tangent along one direction after
+    /// [`Chain::sums`] into `out`, its cart row returned (0 without a cart), for
+    /// [`Chain::solve_factored_many`].
     #[allow(clippy::too_many_arguments)]
     fn tangent_shared_rhs(
         &self,
