@@ -534,7 +534,7 @@ impl Chain {
         }
     }
 
-    /// Fill `sh` for [`Chain::hamilton_tangent_shared`] at rates `omega` (the angles' trig in
+    /// Fill `sh` for the Hamiltonian tangent at rates `omega` (the angles' trig in
     /// `ws`) and factor the mass matrix into `ws`.
     #[cfg(test)]
     fn hamilton_share(&self, omega: &[f64], sh: &mut Shared, ws: &mut Workspace) -> std::result::Result<(), Singular> {
@@ -548,34 +548,12 @@ impl Chain {
         self.coupled_sums(ws, &omega[..n], &mut sh.sin_sums, &mut sh.cos_sums);
     }
 
-    /// [`Chain::hamilton_tangent_forced`] after [`Chain::hamilton_share`]: the same equations,
-    /// the shared sums and factorisation reused, in three parts (so that the solves of many
-    /// directions can run side by side, [`Chain::solve_factored_many`]):
-    /// [`Chain::hamilton_tangent_rhs`], the solve, [`Chain::hamilton_tangent_finish`].
-    /// `scratch` holds 5 N values. One direction at a time: [`Columns::rates`] runs the parts
-    /// over all its directions; the tests hold this against the unshared tangent.
-    #[cfg(test)]
-    #[allow(clippy::too_many_arguments)]
-    fn hamilton_tangent_shared(
-        &self,
-        rates: (&[f64], f64),
-        gravity: [f64; 2],
-        direction: (&[f64], &[f64], f64),
-        forcing: Option<(&[f64], f64, &[f64])>,
-        sh: &Shared,
-        d_omega: &mut [f64],
-        d_pdot: &mut [f64],
-        scratch: &mut [f64],
-        ws: &Workspace,
-    ) -> std::result::Result<(f64, f64), Singular> {
-        let mut row = [self.hamilton_tangent_rhs(rates, gravity, direction, forcing, sh, d_omega, d_pdot, scratch, ws)];
-        self.solve_factored_many(sh, ws, &mut d_omega[..self.n()], (0, 0), &mut row)?;
-        Ok(self.hamilton_tangent_finish(rates, row[0], sh, d_omega, d_pdot, scratch, ws))
-    }
-
-    /// The first part of the Hamiltonian tangent after [`Chain::hamilton_sums`]: the right-hand side of
-    /// `M d(v, omega) = d(p_x, p) - (dM)(v, omega)` into `d_omega` (its cart row returned), and
-    /// the terms of `d p_dot` that do not depend on `d omega` into `d_pdot`.
+    /// The Hamiltonian tangent ([`Chain::hamilton_tangent_forced`]'s equations) reusing the shared
+    /// sums and factorisation, in three parts so that the solves of many directions run side by
+    /// side: this, [`Chain::solve_factored_many`], [`Chain::hamilton_tangent_finish`]. First, after
+    /// [`Chain::hamilton_sums`], the right-hand side of `M d(v, omega) = d(p_x, p) - (dM)(v,
+    /// omega)` into `d_omega` (its cart row returned), and the terms of `d p_dot` that do not
+    /// depend on `d omega` into `d_pdot`. `scratch` holds 3 N values.
     #[allow(clippy::too_many_arguments)]
     fn hamilton_tangent_rhs(
         &self,
@@ -618,8 +596,8 @@ impl Chain {
         row
     }
 
-    /// The last part of the Hamiltonian tangent, once `d_omega` and the cart's `dv`
-    /// are solved: the rest of `d p_dot`; returns `(dv, d p_x_dot)`.
+    /// The last part of the Hamiltonian tangent ([`Chain::hamilton_tangent_rhs`]), once
+    /// `d_omega` and the cart's `dv` are solved: the rest of `d p_dot`; returns `(dv, d p_x_dot)`.
     #[allow(clippy::too_many_arguments)]
     fn hamilton_tangent_finish(
         &self,
@@ -1075,42 +1053,34 @@ mod tests {
     }
 
     #[test]
-    fn the_shared_tangent_is_the_general_one() {
+    fn the_shared_tangents_are_the_general_ones() {
+        // Both forms; the Hamiltonian along a direction of the state alone and with a
+        // parameter's forcing on top.
         let (theta, omega, v) = ([0.4, -1.1, 2.0], [0.7, -0.3, 1.5], 0.35);
         let (dth, dw, dv) = ([0.2, -0.5, 0.3], [0.1, 0.4, -0.6], 0.7);
+        let close = |got: f64, want: f64| (got - want).abs() < 1e-13 * want.abs().max(1.0);
         for chain in chains() {
             let n = chain.n();
             let load = Load { gravity: [1.3, -9.0], cart_force: 0.5 };
             let mut ws = Workspace::new(n);
+            let mut scratch = vec![0.0; TANGENT_SCRATCH * n];
             let mut acc = vec![0.0; n];
             let r = chain.accelerations_general(&theta, &omega, v, &[0.2, 0.0, -0.1], &load, &mut acc, &mut ws).unwrap();
             let (mut want, mut got) = (vec![0.0; n], vec![0.0; n]);
-            let dx0 = chain
-                .tangent_general(&theta, &omega, (&acc, r.cart), &load, (&dth, &dw, dv), &mut want, &mut vec![0.0; 8 * n], &mut ws)
-                .unwrap();
+            let dx0 = chain.tangent_general(&theta, &omega, (&acc, r.cart), &load, (&dth, &dw, dv), &mut want, &mut scratch, &mut ws).unwrap();
             chain.trig(&theta, &mut ws);
             let mut sh = Shared::new(n);
             chain.share(&omega, &acc, &mut sh, &mut ws).unwrap();
             let dx = chain.tangent_shared(&omega, (&acc, r.cart), load.gravity, (&dth, &dw, dv), None, &sh, &mut got, &ws).unwrap();
             for a in 0..n {
-                assert!((got[a] - want[a]).abs() < 1e-13 * want[a].abs().max(1.0), "{a}: {} vs {}", got[a], want[a]);
+                assert!(close(got[a], want[a]), "{a}: {} vs {}", got[a], want[a]);
             }
-            assert!((dx - dx0).abs() < 1e-13 * dx0.abs().max(1.0));
-        }
-    }
+            assert!(close(dx, dx0));
 
-    #[test]
-    fn the_shared_hamiltonian_tangent_is_the_general_one() {
-        let (theta, omega, v) = ([0.4, -1.1, 2.0], [0.7, -0.3, 1.5], 0.35);
-        let (dth, dp, dpx) = ([0.2, -0.5, 0.3], [0.1, 0.4, -0.6], 0.7);
-        for chain in chains() {
-            let n = chain.n();
-            let load = Load { gravity: [1.3, -9.0], cart_force: 0.5 };
+            // The Hamiltonian form, the same numbers as momenta.
+            let (dp, dpx) = (dw, dv);
             let mut sc = Scratch::new(&chain);
-            let mut ws = Workspace::new(n);
-            chain.trig(&theta, &mut ws);
             chain.prepare_forcing(&At::Hamiltonian { omega: &omega, v }, &load, &mut sc, &ws);
-            // Along a direction of the state alone, and with a parameter's forcing on top.
             for param in [None, Some(Param::Length(1)), Some(Param::Gravity)] {
                 let forcing = param.map(|p| {
                     let bx = chain.hamiltonian_forcing(&omega, p, &mut sc);
@@ -1118,20 +1088,18 @@ mod tests {
                 });
                 let forcing = forcing.as_ref().map(|(a, b, c)| (&a[..], *b, &c[..]));
                 let (mut w0, mut pd0, mut w1, mut pd1) = (vec![0.0; n], vec![0.0; n], vec![0.0; n], vec![0.0; n]);
-                let mut scratch = vec![0.0; TANGENT_SCRATCH * n];
                 let want = chain
                     .hamilton_tangent_forced(&theta, (&omega, v), load.gravity, (&dth, &dp, dpx), forcing, &mut w0, &mut pd0, &mut scratch, &mut ws)
                     .unwrap();
-                let mut sh = Shared::new(n);
                 chain.hamilton_share(&omega, &mut sh, &mut ws).unwrap();
-                let got = chain
-                    .hamilton_tangent_shared((&omega, v), load.gravity, (&dth, &dp, dpx), forcing, &sh, &mut w1, &mut pd1, &mut scratch, &ws)
-                    .unwrap();
+                let mut row = [chain.hamilton_tangent_rhs((&omega, v), load.gravity, (&dth, &dp, dpx), forcing, &sh, &mut w1, &mut pd1, &mut scratch, &ws)];
+                chain.solve_factored_many(&sh, &ws, &mut w1, (0, 0), &mut row).unwrap();
+                let got = chain.hamilton_tangent_finish((&omega, v), row[0], &sh, &w1, &mut pd1, &mut scratch, &ws);
                 for a in 0..n {
-                    assert!((w1[a] - w0[a]).abs() < 1e-13 * w0[a].abs().max(1.0), "{param:?} d omega {a}: {} vs {}", w1[a], w0[a]);
-                    assert!((pd1[a] - pd0[a]).abs() < 1e-13 * pd0[a].abs().max(1.0), "{param:?} d p_dot {a}: {} vs {}", pd1[a], pd0[a]);
+                    assert!(close(w1[a], w0[a]), "{param:?} d omega {a}: {} vs {}", w1[a], w0[a]);
+                    assert!(close(pd1[a], pd0[a]), "{param:?} d p_dot {a}: {} vs {}", pd1[a], pd0[a]);
                 }
-                assert!((got.0 - want.0).abs() < 1e-13 * want.0.abs().max(1.0) && (got.1 - want.1).abs() < 1e-13 * want.1.abs().max(1.0));
+                assert!(close(got.0, want.0) && close(got.1, want.1));
             }
         }
     }
