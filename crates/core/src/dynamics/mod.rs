@@ -53,13 +53,16 @@ pub struct Workspace {
     cos: Vec<f64>,
     u: Vec<[f64; 2]>,
     dinv: Vec<f64>,
+    /// The last elimination's articulated inertia term `G_xx` (with `u` and `dinv`, the
+    /// factorisation whole: a cart's solve against it needs it).
+    gxx: f64,
     /// The power each joint's losses dissipate (the general model's).
     power: Vec<f64>,
 }
 
 impl Workspace {
     pub fn new(n: usize) -> Self {
-        Workspace { sin: vec![0.0; n], cos: vec![0.0; n], u: vec![[0.0; 2]; n], dinv: vec![0.0; n], power: vec![0.0; n] }
+        Workspace { sin: vec![0.0; n], cos: vec![0.0; n], u: vec![[0.0; 2]; n], dinv: vec![0.0; n], gxx: 0.0, power: vec![0.0; n] }
     }
 }
 
@@ -122,6 +125,7 @@ impl Chain {
             dinv[a] = inv;
             x[a] = rho;
         }
+        ws.gxx = gxx;
         Ok(Articulated { gxx, wx })
     }
 

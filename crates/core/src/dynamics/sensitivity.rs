@@ -390,13 +390,11 @@ pub(crate) struct Shared {
     cos_sums: Vec<f64>,
     sin_sums: Vec<f64>,
     scratch: Vec<f64>,
-    /// The cart's articulated inertia term `G_xx` of the factorisation.
-    gxx: f64,
 }
 
 impl Shared {
     fn new(n: usize) -> Self {
-        Shared { cos_sums: vec![0.0; n], sin_sums: vec![0.0; n], scratch: vec![0.0; n], gxx: 0.0 }
+        Shared { cos_sums: vec![0.0; n], sin_sums: vec![0.0; n], scratch: vec![0.0; n] }
     }
 }
 
@@ -437,22 +435,10 @@ impl Chain {
         }
     }
 
-    /// `G_xx` of the factorisation in `ws`, summed as [`Chain::eliminate`] sums it (the same
-    /// bits), for a factorisation another evaluation left there.
-    fn factored_gxx(&self, ws: &Workspace) -> f64 {
-        let n = self.n();
-        let (u, dinv) = (&ws.u[..n], &ws.dinv[..n]);
-        let mut gxx = 0.0;
-        for a in (0..n).rev() {
-            gxx += u[a][0] * u[a][0] * dinv[a];
-        }
-        gxx
-    }
-
-    /// The mass matrix's factorisation into `ws` (the angles' trig there), `G_xx` into `sh`.
+    /// The mass matrix's factorisation into `ws` (the angles' trig there).
     fn factor(&self, sh: &mut Shared, ws: &mut Workspace) -> std::result::Result<(), Singular> {
         sh.scratch.fill(0.0);
-        sh.gxx = self.eliminate(ws, &mut sh.scratch, |_, _, _| 0.0)?.gxx;
+        self.eliminate(ws, &mut sh.scratch, |_, _, _| 0.0)?;
         Ok(())
     }
 
@@ -464,11 +450,11 @@ impl Chain {
     /// side by side, the columns' chains of dependent operations (each link waits on the sums
     /// of the links before it) overlap instead of running one after another. `at`: `(stride,
     /// off)`.
-    fn solve_factored_many(&self, sh: &Shared, ws: &Workspace, xs: &mut [f64], at: (usize, usize), rows: &mut [f64]) -> std::result::Result<(), Singular> {
+    fn solve_factored_many(&self, ws: &Workspace, xs: &mut [f64], at: (usize, usize), rows: &mut [f64]) -> std::result::Result<(), Singular> {
         let k = rows.len();
         // The cart's articulated inertia is the same for every column (the factorisation's).
         let cart = match self.cart {
-            Some(_) => Some(self.cart_inertia(super::Articulated { gxx: sh.gxx, wx: 0.0 })?),
+            Some(_) => Some(self.cart_inertia(super::Articulated { gxx: ws.gxx, wx: 0.0 })?),
             None => None,
         };
         let mut first = 0;
@@ -625,8 +611,8 @@ impl Chain {
         (dv, self.cart.map_or(0.0, |cart| -cart.damping * dv))
     }
 
-    /// [`Chain::tangent_general`] (with a parameter's forcing) after [`Chain::share`]: `d theta_ddot` into `out`, `d x_ddot`
-    /// returned. One direction at a time: [`Columns::rates`] builds every direction's right-hand
+    /// [`Chain::tangent_general`] (with a parameter's forcing) after [`Chain::share`]:
+    /// `d theta_ddot` into `out`, `d x_ddot` returned. One direction at a time: [`Columns::rates`] builds every direction's right-hand
     /// side ([`Chain::tangent_shared_rhs`]) and solves them side by side; the tests hold this
     /// against the unshared tangent.
     #[cfg(test)]
@@ -643,7 +629,7 @@ impl Chain {
         ws: &Workspace,
     ) -> std::result::Result<f64, Singular> {
         let mut row = [self.tangent_shared_rhs(omega, rates, gravity, direction, forcing, sh, out, ws)];
-        self.solve_factored_many(sh, ws, out, (0, 0), &mut row)?;
+        self.solve_factored_many(ws, out, (0, 0), &mut row)?;
         Ok(row[0])
     }
 
@@ -776,12 +762,7 @@ impl Columns {
         // The parameters' forcings need their fields; the initial state's directions do not.
         let params = dirs.iter().any(|d| matches!(d, Direction::Param(_)));
         let ws: &Workspace = match factored {
-            Some(ws) => {
-                if cart {
-                    shared.gxx = chain.factored_gxx(ws);
-                }
-                ws
-            }
+            Some(ws) => ws,
             None => {
                 chain.trig(&y[..n], own);
                 chain.factor(shared, own)?;
@@ -819,7 +800,7 @@ impl Columns {
                         o[2 * n] = dv;
                     }
                 }
-                chain.solve_factored_many(shared, ws, out, (m, n), rows)?;
+                chain.solve_factored_many(ws, out, (m, n), rows)?;
                 if cart {
                     for (c, &dx) in rows.iter().enumerate() {
                         out[c * m + 2 * n + 1] = dx;
@@ -853,7 +834,7 @@ impl Columns {
                         ws,
                     );
                 }
-                chain.solve_factored_many(shared, ws, out, (m, 0), rows)?;
+                chain.solve_factored_many(ws, out, (m, 0), rows)?;
                 for (c, &dv) in rows.iter().enumerate() {
                     let o = &mut out[c * m..(c + 1) * m];
                     let (head, tail) = o.split_at_mut(n);
@@ -1093,7 +1074,7 @@ mod tests {
                     .unwrap();
                 chain.hamilton_share(&omega, &mut sh, &mut ws).unwrap();
                 let mut row = [chain.hamilton_tangent_rhs((&omega, v), load.gravity, (&dth, &dp, dpx), forcing, &sh, &mut w1, &mut pd1, &mut scratch, &ws)];
-                chain.solve_factored_many(&sh, &ws, &mut w1, (0, 0), &mut row).unwrap();
+                chain.solve_factored_many(&ws, &mut w1, (0, 0), &mut row).unwrap();
                 let got = chain.hamilton_tangent_finish((&omega, v), row[0], &sh, &w1, &mut pd1, &mut scratch, &ws);
                 for a in 0..n {
                     assert!(close(w1[a], w0[a]), "{param:?} d omega {a}: {} vs {}", w1[a], w0[a]);
