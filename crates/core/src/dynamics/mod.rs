@@ -162,32 +162,33 @@ impl Chain {
         ws: &mut Workspace,
     ) -> Result<(), Singular> {
         match self.n() {
-            2 => self.accelerations_double(theta, omega, tau, out),
+            2 => self.accelerations_double(theta, omega, tau, out, ws),
             _ => self.accelerations_impl(theta, omega, tau, out, ws),
         }
     }
 
     /// The double pendulum, the most common case, solved in closed form: the same `K`, `h` and
     /// diagonal as the recursion (tests hold the two equal), with `cos`/`sin(theta_1 - theta_2)`
-    /// rebuilt from each angle's own pair so that only the two angles' sin/cos are taken.
+    /// rebuilt from each angle's own pair so that only the two angles' sin/cos are taken. Leaves
+    /// the angles' trig in `ws` as the recursion does (what rides along the state reuses it).
     ///
     /// Where the CPU has AVX2 and FMA, a copy compiled for them takes the angles' pair through
     /// the lanes' kernel inline ([`crate::trig::lanes::sin_cos_pair`]); the rest of its
     /// arithmetic is the same operations (Rust never fuses them unasked), so the same bits.
     #[inline(always)]
-    fn accelerations_double(&self, theta: &[f64], omega: &[f64], tau: &[f64], out: &mut [f64]) -> Result<(), Singular> {
+    fn accelerations_double(&self, theta: &[f64], omega: &[f64], tau: &[f64], out: &mut [f64], ws: &mut Workspace) -> Result<(), Singular> {
         #[cfg(target_arch = "x86_64")]
         if crate::trig::lanes::fma() {
             // SAFETY: the CPU has AVX2 and FMA.
-            return unsafe { self.accelerations_double_fma(theta, omega, tau, out) };
+            return unsafe { self.accelerations_double_fma(theta, omega, tau, out, ws) };
         }
-        self.accelerations_double_with::<false>(theta, omega, tau, out)
+        self.accelerations_double_with::<false>(theta, omega, tau, out, ws)
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,fma")]
-    unsafe fn accelerations_double_fma(&self, theta: &[f64], omega: &[f64], tau: &[f64], out: &mut [f64]) -> Result<(), Singular> {
-        self.accelerations_double_with::<true>(theta, omega, tau, out)
+    unsafe fn accelerations_double_fma(&self, theta: &[f64], omega: &[f64], tau: &[f64], out: &mut [f64], ws: &mut Workspace) -> Result<(), Singular> {
+        self.accelerations_double_with::<true>(theta, omega, tau, out, ws)
     }
 
     #[inline(always)]
@@ -197,6 +198,7 @@ impl Chain {
         omega: &[f64],
         tau: &[f64],
         out: &mut [f64],
+        ws: &mut Workspace,
     ) -> Result<(), Singular> {
         let (d1, d2, h1, h2, g) = (self.diag[0], self.diag[1], self.h[0], self.h[1], self.g);
         let k = self.lengths[0] * h2;
@@ -206,6 +208,7 @@ impl Chain {
         } else {
             crate::trig::lanes::sin_cos_pair(theta[0], theta[1])
         };
+        (ws.sin[0], ws.cos[0], ws.sin[1], ws.cos[1]) = (s1, c1, s2, c2);
         let (s12, c12) = (s1 * c2 - c1 * s2, c1 * c2 + s1 * s2);
         let r1 = tau[0] - g * h1 * s1 - k * s12 * omega[1] * omega[1];
         let r2 = tau[1] - g * h2 * s2 + k * s12 * omega[0] * omega[0];

@@ -20,8 +20,8 @@
 //!
 //! The joint losses `u_j = -b_j w_j - f_j tanh(w_j / v_s)` enter as `Q_j = u_j - u_{j+1}`.
 use super::general::{saturating_tanh, Load, TANGENT_SCRATCH};
-use super::system::Form;
-use super::{Singular, Workspace};
+use super::system::{Evaluated, Form};
+use super::{Singular, Workspace, PIVOT_TOL};
 use crate::error::{Error, Result};
 use crate::model::Chain;
 
@@ -709,6 +709,8 @@ pub struct Columns {
     zero: Vec<f64>,
     /// Per column: the cart's row of the solve.
     rows: Vec<f64>,
+    /// Whether a direction is a parameter's (whose forcing needs [`Chain::prepare_forcing`]).
+    params: bool,
 }
 
 impl Columns {
@@ -724,6 +726,7 @@ impl Columns {
             scratch: vec![0.0; TANGENT_SCRATCH * n],
             zero: vec![0.0; n],
             rows: vec![0.0; dirs.len()],
+            params: dirs.iter().any(|d| matches!(d, Direction::Param(_))),
             dirs,
         }
     }
@@ -741,11 +744,164 @@ impl Columns {
     /// system's right-hand side there): `dS/dt = J S + df/dP`, O(N) per column. The columns
     /// share the state's trig, coupled sums and factorisation; each builds its right-hand side,
     /// then all are solved side by side, then (Hamiltonian form) each finishes its `d p_dot`.
-    /// `factored`: the workspace of the system's evaluation at `y` if it holds the angles' trig
-    /// and the factorisation there ([`crate::dynamics::system::ChainSystem::factored`]), which
-    /// are then not computed again; else they are computed here.
+    /// `evaluated`: what the system's evaluation at `y` left
+    /// ([`crate::dynamics::system::ChainSystem::evaluated`]), which is then not computed again.
     #[allow(clippy::too_many_arguments)]
     pub fn rates(
+        &mut self,
+        chain: &Chain,
+        load: &Load,
+        y: &[f64],
+        dy: &[f64],
+        cols: &[f64],
+        out: &mut [f64],
+        evaluated: Evaluated,
+    ) -> std::result::Result<(), Singular> {
+        if chain.n() == 2 && chain.cart.is_none() {
+            self.rates_double(chain, load, y, dy, cols, out, evaluated)
+        } else {
+            let factored = match evaluated {
+                Evaluated::Factored(ws) => Some(ws),
+                _ => None,
+            };
+            self.rates_general(chain, load, y, dy, cols, out, factored)
+        }
+    }
+
+    /// [`Columns::rates`] of the double pendulum without a cart, in closed form: at N = 2 the
+    /// recursions' fixed cost outweighs their arithmetic (and the Lagrangian evaluation, a
+    /// closed form too, leaves no factorisation to reuse). The tangents are
+    /// [`Chain::tangent_shared_rhs`]'s and [`Chain::hamilton_tangent_rhs`]'s at N = 2 written out
+    /// (tested equal to round-off), with `M = [[d_1, k c_12], [k c_12, d_2]]`, `k = l_1 h_2`,
+    /// `d_12 = d theta_1 - d theta_2` and `G_a = h_a (g_y cos theta_a - g_x sin theta_a)`:
+    ///
+    /// - Lagrangian: `M d omega_dot = r`, `r_1 = G_1 d theta_1 - k (c_12 w_2^2 d_12 + s_12 (2 w_2
+    ///   d w_2 - a_2 d_12))`, `r_2 = G_2 d theta_2 + k (c_12 w_1^2 d_12 + s_12 (2 w_1 d w_1 + a_1
+    ///   d_12))`;
+    /// - Hamiltonian: `M d omega = d p + k s_12 d_12 (w_2, w_1)`, then `d p_dot_1 = G_1 d theta_1
+    ///   - q`, `d p_dot_2 = G_2 d theta_2 + q`, `q = k (c_12 d_12 w_1 w_2 + s_12 (d w_1 w_2 + w_1
+    ///   d w_2))`;
+    ///
+    /// then the losses' terms and the forcings ([`Chain::lagrangian_forcing`]'s and
+    /// [`Chain::hamiltonian_forcing`]'s, written out: a link parameter's through the derivatives
+    /// of `M`'s entries and `h_a`); the 2 x 2 solve by the adjugate, one division per evaluation.
+    #[allow(clippy::too_many_arguments)]
+    fn rates_double(
+        &mut self,
+        chain: &Chain,
+        load: &Load,
+        y: &[f64],
+        dy: &[f64],
+        cols: &[f64],
+        out: &mut [f64],
+        evaluated: Evaluated,
+    ) -> std::result::Result<(), Singular> {
+        let (m, form) = (self.mech, self.form);
+        let Columns { dirs, ws: own, .. } = self;
+        let ws: &Workspace = match evaluated {
+            Evaluated::Trig(ws) | Evaluated::Factored(ws) => ws,
+            Evaluated::Nothing => {
+                let [(s1, c1), (s2, c2)] = crate::trig::lanes::sin_cos_pair(y[0], y[1]);
+                (own.sin[0], own.cos[0], own.sin[1], own.cos[1]) = (s1, c1, s2, c2);
+                own
+            }
+        };
+        let (s1, c1, s2, c2) = (ws.sin[0], ws.cos[0], ws.sin[1], ws.cos[1]);
+        let (d1, d2, h1, h2) = (chain.diag[0], chain.diag[1], chain.h[0], chain.h[1]);
+        let k = chain.lengths[0] * h2;
+        let (s12, c12) = (s1 * c2 - c1 * s2, c1 * c2 + s1 * s2);
+        let kc = k * c12;
+        let det = d1 * d2 - kc * kc;
+        // The evaluation's own test (the recursion's pivot at link 0 is det / d2).
+        if !(det > PIVOT_TOL * d1 * d2) {
+            return Err(Singular(0));
+        }
+        let inv = 1.0 / det;
+        let solve = |r: [f64; 2]| [(d2 * r[0] - kc * r[1]) * inv, (d1 * r[1] - kc * r[0]) * inv];
+        let [gx, gy] = load.gravity;
+        let (g1, g2) = (h1 * (gy * c1 - gx * s1), h2 * (gy * c2 - gx * s2));
+        // Gravity's generalized forces per unit h_a, and their derivatives along g.
+        let (f1, f2) = (gx * c1 + gy * s1, gx * c2 + gy * s2);
+        let lossy = chain.lossy_joints();
+        let (l1, m1, m2, c_1, c_2) = (chain.lengths[0], chain.masses[0], chain.masses[1], chain.com[0], chain.com[1]);
+        // A link parameter's derivatives of d_a = I_a + m_a c_a^2 + l_a^2 m_below, h_a = m_a c_a
+        // + l_a m_below and k ([`Chain::new`]'s; a lower link's length moves none).
+        let derivatives = |dir: Direction| match dir {
+            Direction::Param(Param::Inertia(0)) => (1.0, 0.0, 0.0, 0.0, 0.0),
+            Direction::Param(Param::Inertia(_)) => (0.0, 1.0, 0.0, 0.0, 0.0),
+            Direction::Param(Param::Length(0)) => (2.0 * l1 * m2, 0.0, m2, 0.0, m2 * c_2),
+            Direction::Param(Param::Mass(0)) => (c_1 * c_1, 0.0, c_1, 0.0, 0.0),
+            Direction::Param(Param::Mass(_)) => (l1 * l1, c_2 * c_2, l1, c_2, l1 * c_2),
+            Direction::Param(Param::Com(0)) => (2.0 * m1 * c_1, 0.0, m1, 0.0, 0.0),
+            Direction::Param(Param::Com(_)) => (0.0, 2.0 * m2 * c_2, 0.0, m2, l1 * m2),
+            _ => (0.0, 0.0, 0.0, 0.0, 0.0),
+        };
+        // `-d/dg` of gravity's `-g h_a sin theta_a` and a loss coefficient's `d Q / d P`.
+        let explicit = |dir: Direction, omega: &[f64], r: &mut [f64; 2]| match dir {
+            Direction::Param(Param::Gravity) => {
+                r[0] -= h1 * s1;
+                r[1] -= h2 * s2;
+            }
+            Direction::Param(p @ (Param::Damping(_) | Param::Friction(_))) => chain.loss_derivative(omega, p, r),
+            _ => {}
+        };
+        match form {
+            Form::Lagrangian => {
+                let (w1, w2, a1, a2) = (y[2], y[3], dy[2], dy[3]);
+                let (kw1, kw2) = (kc * w1 * w1, kc * w2 * w2);
+                // What multiplies the derivatives in `-d(M a - F)/dP`, row by row.
+                let (k1, k2) = (c12 * a2 + s12 * w2 * w2, c12 * a1 - s12 * w1 * w1);
+                for (c, &dir) in dirs.iter().enumerate() {
+                    let (col, o) = (&cols[c * m..(c + 1) * m], &mut out[c * m..(c + 1) * m]);
+                    let (dt1, dt2, dw1, dw2) = (col[0], col[1], col[2], col[3]);
+                    let d12 = dt1 - dt2;
+                    let mut r = [
+                        g1 * dt1 - (kw2 * d12 + k * s12 * (2.0 * w2 * dw2 - a2 * d12)),
+                        g2 * dt2 + (kw1 * d12 + k * s12 * (2.0 * w1 * dw1 + a1 * d12)),
+                    ];
+                    if lossy {
+                        chain.add_loss_tangent(&y[2..4], &col[2..4], &mut r);
+                    }
+                    explicit(dir, &y[2..4], &mut r);
+                    let (dd1, dd2, dh1, dh2, dk) = derivatives(dir);
+                    r[0] -= dd1 * a1 - dh1 * f1 + dk * k1;
+                    r[1] -= dd2 * a2 - dh2 * f2 + dk * k2;
+                    let [e1, e2] = solve(r);
+                    (o[0], o[1], o[2], o[3]) = (dw1, dw2, e1, e2);
+                }
+            }
+            Form::Hamiltonian => {
+                let (w1, w2) = (dy[0], dy[1]);
+                let (ks, ww) = (k * s12, w1 * w2);
+                for (c, &dir) in dirs.iter().enumerate() {
+                    let (col, o) = (&cols[c * m..(c + 1) * m], &mut out[c * m..(c + 1) * m]);
+                    let (dt1, dt2, dp1, dp2) = (col[0], col[1], col[2], col[3]);
+                    let d12 = dt1 - dt2;
+                    let (dd1, dd2, dh1, dh2, dk) = derivatives(dir);
+                    // The momenta's derivative at fixed rates, `(dM/dP) omega`, comes off first.
+                    let [dw1, dw2] = solve([
+                        dp1 + ks * d12 * w2 - (dd1 * w1 + dk * c12 * w2),
+                        dp2 + ks * d12 * w1 - (dk * c12 * w1 + dd2 * w2),
+                    ]);
+                    let q = k * (c12 * d12 * ww + s12 * (dw1 * w2 + w1 * dw2));
+                    let mut r = [g1 * dt1 - q, g2 * dt2 + q];
+                    if lossy {
+                        chain.add_loss_tangent(&dy[..2], &[dw1, dw2], &mut r);
+                    }
+                    explicit(dir, &dy[..2], &mut r);
+                    // `p_dot`'s derivative at fixed angles and rates.
+                    r[0] += dh1 * f1 - dk * s12 * ww;
+                    r[1] += dh2 * f2 + dk * s12 * ww;
+                    (o[0], o[1], o[2], o[3]) = (dw1, dw2, r[0], r[1]);
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// [`Columns::rates`] by the O(N) recursions.
+    #[allow(clippy::too_many_arguments)]
+    fn rates_general(
         &mut self,
         chain: &Chain,
         load: &Load,
@@ -758,9 +914,8 @@ impl Columns {
         let n = chain.n();
         let m = self.mech;
         let cart = chain.cart.is_some();
-        let Columns { dirs, sc, shared, ws: own, scratch, rows, .. } = self;
-        // The parameters' forcings need their fields; the initial state's directions do not.
-        let params = dirs.iter().any(|d| matches!(d, Direction::Param(_)));
+        let Columns { dirs, sc, shared, ws: own, scratch, rows, params, .. } = self;
+        let params = *params;
         let ws: &Workspace = match factored {
             Some(ws) => ws,
             None => {
@@ -1090,7 +1245,7 @@ mod tests {
         use crate::dynamics::system::{ChainSystem, OdeSystem};
         use crate::dynamics::torque::Builtin;
         // Every path that leaves its factorisation (N = 3: the ideal, the lossy and the cart's
-        // recursions, both forms; N = 2 in the Hamiltonian form) and one that does not.
+        // recursions, both forms; N = 2 in the Hamiltonian form) and one that leaves the trig only.
         let two = Chain::new(&[1.0, 0.7], &[1.2, 0.8], Some(&[0.6, 0.3]), Some(&[0.05, 0.02]), 9.81).unwrap();
         for chain in chains().into_iter().chain([two]) {
             let n = chain.n();
@@ -1105,12 +1260,48 @@ mod tests {
                 let s: Vec<f64> = (0..cols.len()).map(|i| ((i * 7 % 11) as f64 - 5.0) / 3.0).collect();
                 let (mut reused, mut own) = (vec![0.0; cols.len()], vec![0.0; cols.len()]);
                 let load = sys.last_load();
-                let factored = sys.factored();
-                assert_eq!(factored.is_some(), form == Form::Hamiltonian || n != 2);
-                cols.rates(&chain, &load, &y, &dy, &s, &mut reused, factored).unwrap();
-                cols.rates(&chain, &load, &y, &dy, &s, &mut own, None).unwrap();
+                let evaluated = sys.evaluated();
+                assert_eq!(matches!(evaluated, Evaluated::Factored(_)), form == Form::Hamiltonian || n != 2);
+                cols.rates(&chain, &load, &y, &dy, &s, &mut reused, evaluated).unwrap();
+                cols.rates(&chain, &load, &y, &dy, &s, &mut own, Evaluated::Nothing).unwrap();
                 let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
                 assert_eq!(bits(&reused), bits(&own), "N = {n}, {form:?}, cart {}", chain.cart.is_some());
+            }
+        }
+    }
+
+    #[test]
+    fn the_double_pendulums_closed_form_columns_are_the_recursions() {
+        // Both forms, every input (the losses' on the lossy chain), under gravity with a sideways
+        // part (a pivot's acceleration), at a state where every term of the tangent is nonzero.
+        let two = Chain::new(&[1.0, 0.7], &[1.2, 0.8], Some(&[0.6, 0.3]), Some(&[0.05, 0.02]), 9.81).unwrap();
+        let lossy = two.clone().with_losses(&[0.3, 0.2], &[0.05, 0.03], 0.5).unwrap();
+        let (theta, omega, tau) = ([0.4, -1.1], [0.7, -0.3], [0.2, -0.1]);
+        let load = Load { gravity: [1.3, -9.0], cart_force: 0.0 };
+        for chain in [two, lossy] {
+            let mut inputs = vec![Input::Theta0, Input::Omega0, Input::Lengths, Input::Masses, Input::Com, Input::Inertia, Input::G];
+            if chain.lossy_joints() {
+                inputs.extend([Input::Damping, Input::Friction]);
+            }
+            let mut accel = [0.0; 2];
+            chain.accelerations_general(&theta, &omega, 0.0, &tau, &load, &mut accel, &mut Workspace::new(2)).unwrap();
+            let mut p = [0.0; 2];
+            chain.momenta_into(&theta, &omega, &mut p, &mut Workspace::new(2));
+            for form in Form::ALL {
+                // The state and its rates: (theta, omega) and (omega, accel), or (theta, p) and
+                // (omega, p_dot) (whose p_dot the columns do not read).
+                let (y, dy) = match form {
+                    Form::Lagrangian => ([theta[0], theta[1], omega[0], omega[1]], [omega[0], omega[1], accel[0], accel[1]]),
+                    Form::Hamiltonian => ([theta[0], theta[1], p[0], p[1]], [omega[0], omega[1], f64::NAN, f64::NAN]),
+                };
+                let mut cols = Columns::new(&chain, form, directions(&inputs, 2).unwrap());
+                let s: Vec<f64> = (0..cols.len()).map(|i| ((i * 7 % 11) as f64 - 5.0) / 3.0).collect();
+                let (mut closed, mut general) = (vec![0.0; cols.len()], vec![0.0; cols.len()]);
+                cols.rates_double(&chain, &load, &y, &dy, &s, &mut closed, Evaluated::Nothing).unwrap();
+                cols.rates_general(&chain, &load, &y, &dy, &s, &mut general, None).unwrap();
+                for (i, (a, b)) in closed.iter().zip(&general).enumerate() {
+                    assert!((a - b).abs() <= 1e-13 * b.abs().max(1.0), "{form:?}, value {i}: {a} vs {b}");
+                }
             }
         }
     }

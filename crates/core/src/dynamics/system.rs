@@ -235,12 +235,16 @@ impl<C: Borrow<Chain>, T: TorqueSource> ChainSystem<C, T> {
         self.last_load
     }
 
-    /// The workspace of the last evaluation of the right-hand side, when it holds that state's
-    /// angles' trig and mass-matrix factorisation: every path but the Lagrangian double
-    /// pendulum's closed forms (which take the pair's trig inline and solve 2 x 2). What rides
-    /// along the state (the sensitivity columns) reuses them.
-    pub fn factored(&self) -> Option<&Workspace> {
-        (self.form == Form::Hamiltonian || self.chain.borrow().n() != 2).then_some(&self.ws)
+    /// What the last evaluation of the right-hand side left in its workspace for what rides
+    /// along the state (the sensitivity columns): every path leaves the angles' trig, and every
+    /// path but the Lagrangian double pendulum's closed forms (which solve 2 x 2) the mass
+    /// matrix's factorisation too.
+    pub fn evaluated(&self) -> Evaluated<'_> {
+        if self.form == Form::Hamiltonian || self.chain.borrow().n() != 2 {
+            Evaluated::Factored(&self.ws)
+        } else {
+            Evaluated::Trig(&self.ws)
+        }
     }
 
     /// Whether the torque is a feedback of the state.
@@ -268,6 +272,17 @@ impl<C: Borrow<Chain>, T: TorqueSource> ChainSystem<C, T> {
             None => Ok(Motion::default()),
         }
     }
+}
+
+/// What a system's evaluation at a state left for reuse there ([`ChainSystem::evaluated`]).
+#[derive(Clone, Copy)]
+pub enum Evaluated<'a> {
+    /// Nothing: whoever needs the trig or the factorisation computes them.
+    Nothing,
+    /// The angles' trig.
+    Trig(&'a Workspace),
+    /// The angles' trig and the mass matrix's factorisation.
+    Factored(&'a Workspace),
 }
 
 /// A failed pivot means either a non-finite state (a blow-up) or a truly singular configuration.

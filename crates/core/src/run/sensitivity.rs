@@ -124,8 +124,8 @@ impl<T: TorqueSource> OdeSystem for Sensitive<'_, T> {
         // function is called once per evaluation).
         let load = self.sys.last_load();
         let chain = self.chain;
-        let factored = self.sys.factored();
-        self.cols.rates(chain, &load, &y[..b], dy_state, &y[b..], dy_cols, factored).map_err(|s| singular(t, y, s))
+        let evaluated = self.sys.evaluated();
+        self.cols.rates(chain, &load, &y[..b], dy_state, &y[b..], dy_cols, evaluated).map_err(|s| singular(t, y, s))
     }
 }
 
