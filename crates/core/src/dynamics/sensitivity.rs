@@ -491,12 +491,15 @@ impl Chain {
             *at = (first + j) * stride + off;
         }
         let (mut wx, mut wy) = ([0.0; B], [0.0; B]);
+        // Each link's coefficients are formed apart from the running sums, so that a link waits
+        // on the one before for two products and three sums a pass, not for five products.
         for a in (0..n).rev() {
+            let (lc, ls, ux, uy) = (l[a] * c[a], l[a] * s[a], u[a][0] * dinv[a], u[a][1] * dinv[a]);
             for j in 0..B {
                 let x = &mut xs[start[j] + a];
-                let rho = *x - l[a] * (c[a] * wx[j] + s[a] * wy[j]);
-                wx[j] += u[a][0] * rho * dinv[a];
-                wy[j] += u[a][1] * rho * dinv[a];
+                let rho = *x - (lc * wx[j] + ls * wy[j]);
+                wx[j] += ux * rho;
+                wy[j] += uy * rho;
                 *x = rho;
             }
         }
@@ -510,12 +513,13 @@ impl Chain {
             (wx[j], wy[j]) = (*row, 0.0);
         }
         for a in 0..n {
+            let (lc, ls, ux, uy) = (l[a] * c[a], l[a] * s[a], u[a][0] * dinv[a], u[a][1] * dinv[a]);
             for j in 0..B {
                 let x = &mut xs[start[j] + a];
-                let xa = (*x - (u[a][0] * wx[j] + u[a][1] * wy[j])) * dinv[a];
+                let xa = *x * dinv[a] - (ux * wx[j] + uy * wy[j]);
                 *x = xa;
-                wx[j] += l[a] * c[a] * xa;
-                wy[j] += l[a] * s[a] * xa;
+                wx[j] += lc * xa;
+                wy[j] += ls * xa;
             }
         }
     }
