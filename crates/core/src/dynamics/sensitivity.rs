@@ -493,8 +493,9 @@ impl Chain {
         let (mut wx, mut wy) = ([0.0; B], [0.0; B]);
         // Each link's coefficients are formed apart from the running sums, so that a link waits
         // on the one before for two products and three sums a pass, not for five products.
+        let coefficients = |a: usize| (l[a] * c[a], l[a] * s[a], u[a][0] * dinv[a], u[a][1] * dinv[a]);
         for a in (0..n).rev() {
-            let (lc, ls, ux, uy) = (l[a] * c[a], l[a] * s[a], u[a][0] * dinv[a], u[a][1] * dinv[a]);
+            let (lc, ls, ux, uy) = coefficients(a);
             for j in 0..B {
                 let x = &mut xs[start[j] + a];
                 let rho = *x - (lc * wx[j] + ls * wy[j]);
@@ -513,7 +514,7 @@ impl Chain {
             (wx[j], wy[j]) = (*row, 0.0);
         }
         for a in 0..n {
-            let (lc, ls, ux, uy) = (l[a] * c[a], l[a] * s[a], u[a][0] * dinv[a], u[a][1] * dinv[a]);
+            let (lc, ls, ux, uy) = coefficients(a);
             for j in 0..B {
                 let x = &mut xs[start[j] + a];
                 let xa = *x * dinv[a] - (ux * wx[j] + uy * wy[j]);
@@ -713,8 +714,6 @@ pub struct Columns {
     zero: Vec<f64>,
     /// Per column: the cart's row of the solve.
     rows: Vec<f64>,
-    /// Whether a direction is a parameter's (whose forcing needs [`Chain::prepare_forcing`]).
-    params: bool,
 }
 
 impl Columns {
@@ -730,7 +729,6 @@ impl Columns {
             scratch: vec![0.0; TANGENT_SCRATCH * n],
             zero: vec![0.0; n],
             rows: vec![0.0; dirs.len()],
-            params: dirs.iter().any(|d| matches!(d, Direction::Param(_))),
             dirs,
         }
     }
@@ -918,8 +916,9 @@ impl Columns {
         let n = chain.n();
         let m = self.mech;
         let cart = chain.cart.is_some();
-        let Columns { dirs, sc, shared, ws: own, scratch, rows, params, .. } = self;
-        let params = *params;
+        let Columns { dirs, sc, shared, ws: own, scratch, rows, .. } = self;
+        // The parameters' forcings need their fields; the initial state's directions do not.
+        let params = dirs.iter().any(|d| matches!(d, Direction::Param(_)));
         let ws: &Workspace = match factored {
             Some(ws) => ws,
             None => {
