@@ -377,61 +377,62 @@ impl Chain {
 
 /// What the tangents share between directions at one state: the mass matrix's factorisation
 /// (left in the workspace by [`Chain::eliminate`]) and coupled sums of the rates. The
-/// Lagrangian tangent's are those of `omega^2` (cosine part) and of the accelerations (sine
-/// part); with them a direction costs one fused pass and a solve without divisions: the same
+/// Lagrangian tangent's are the coefficients of `d theta` ([`Chain::sums`]: gravity's, and the
+/// coupled sums of `omega^2` (cosine part) and of the accelerations (sine part)); with them a
+/// direction costs one fused pass and a solve without divisions: the same
 /// equations as [`Chain::tangent_general`] (which the Jacobian and the Lyapunov runs keep, bit
 /// for bit), regrouped (tested equal to round-off). The Hamiltonian tangent's are those of
 /// `omega` (both parts); a direction then costs two coupled sums and the solve, not the
 /// angles' trig and a factorisation of its own as [`Chain::hamilton_tangent_forced`] does.
 #[derive(Debug, Clone, Default)]
 pub(crate) struct Shared {
-    /// The cosine and sine parts of the shared coupled sums (the Lagrangian's: of `omega^2` and of
-    /// the accelerations; the Hamiltonian's: both of `omega`).
+    /// The cosine and sine parts of the Hamiltonian tangent's coupled sums of `omega` (the
+    /// Lagrangian's [`Chain::sums`] keeps its summands there).
     cos_sums: Vec<f64>,
     sin_sums: Vec<f64>,
+    /// The Lagrangian tangent's coefficient of each `d theta_a` ([`Chain::sums`]).
+    stiffness: Vec<f64>,
     scratch: Vec<f64>,
 }
 
 impl Shared {
     fn new(n: usize) -> Self {
-        Shared { cos_sums: vec![0.0; n], sin_sums: vec![0.0; n], scratch: vec![0.0; n] }
+        Shared { cos_sums: vec![0.0; n], sin_sums: vec![0.0; n], stiffness: vec![0.0; n], scratch: vec![0.0; n] }
     }
 }
 
 impl Chain {
     /// Fill `sh` at a state (the angles' trig in `ws`) and factor the mass matrix into `ws`.
     #[cfg(test)]
-    fn share(&self, omega: &[f64], accel: &[f64], sh: &mut Shared, ws: &mut Workspace) -> std::result::Result<(), Singular> {
-        self.sums(omega, accel, sh, ws);
+    fn share(&self, omega: &[f64], accel: &[f64], gravity: [f64; 2], sh: &mut Shared, ws: &mut Workspace) -> std::result::Result<(), Singular> {
+        self.sums(omega, accel, gravity, sh, ws);
         self.factor(sh, ws)
     }
 
-    /// The Lagrangian tangent's coupled sums into `sh` (the angles' trig in `ws`): the cosine
-    /// part of [`Chain::coupled_sums`] of `omega^2` and the sine part of the accelerations', in
-    /// one pass each way (each value's arithmetic that of `coupled_sums`, so the same bits).
-    fn sums(&self, omega: &[f64], accel: &[f64], sh: &mut Shared, ws: &Workspace) {
+    /// The Lagrangian tangent's coefficient of `d theta_a` into `sh.stiffness`, the same for
+    /// every direction: gravity's `h_a (g_y cos theta_a - g_x sin theta_a)`, plus the sine part
+    /// of [`Chain::coupled_sums`] of the accelerations less the cosine part of `omega^2`'s. The
+    /// two coupled sums are only ever needed as that difference, so it is summed directly: two
+    /// running sums each way, of `l_b (a_b cos theta_b - w_b^2 sin theta_b)` and `l_b (a_b sin
+    /// theta_b + w_b^2 cos theta_b)` from above (`h_b` from below), not four.
+    fn sums(&self, omega: &[f64], accel: &[f64], [gx, gy]: [f64; 2], sh: &mut Shared, ws: &Workspace) {
         let n = self.n();
         let (l, h, s, c) = (&self.lengths[..n], &self.h[..n], &ws.sin[..n], &ws.cos[..n]);
-        let Shared { cos_sums, sin_sums, scratch: w2, .. } = sh;
-        let (cos_sums, sin_sums, w2, accel) = (&mut cos_sums[..n], &mut sin_sums[..n], &mut w2[..n], &accel[..n]);
-        let (mut pc, mut ps, mut ac, mut as_) = (0.0, 0.0, 0.0, 0.0);
+        let Shared { stiffness, cos_sums: e1, sin_sums: e2, .. } = sh;
+        let (k, e1, e2, omega, accel) = (&mut stiffness[..n], &mut e1[..n], &mut e2[..n], &omega[..n], &accel[..n]);
+        let (mut x, mut y) = (0.0, 0.0);
         for a in 0..n {
-            w2[a] = omega[a] * omega[a];
-            cos_sums[a] = h[a] * (c[a] * pc + s[a] * ps);
-            sin_sums[a] = h[a] * (s[a] * ac - c[a] * as_);
-            pc += l[a] * w2[a] * c[a];
-            ps += l[a] * w2[a] * s[a];
-            ac += l[a] * accel[a] * c[a];
-            as_ += l[a] * accel[a] * s[a];
+            let w2 = omega[a] * omega[a];
+            (e1[a], e2[a]) = (accel[a] * c[a] - w2 * s[a], accel[a] * s[a] + w2 * c[a]);
+            k[a] = h[a] * ((gy * c[a] - gx * s[a]) + (s[a] * x - c[a] * y));
+            x += l[a] * e1[a];
+            y += l[a] * e2[a];
         }
-        let (mut qc, mut qs, mut bc, mut bs) = (0.0, 0.0, 0.0, 0.0);
+        let (mut x, mut y) = (0.0, 0.0);
         for a in (0..n).rev() {
-            cos_sums[a] += l[a] * (c[a] * qc + s[a] * qs);
-            sin_sums[a] += l[a] * (s[a] * bc - c[a] * bs);
-            qc += h[a] * w2[a] * c[a];
-            qs += h[a] * w2[a] * s[a];
-            bc += h[a] * accel[a] * c[a];
-            bs += h[a] * accel[a] * s[a];
+            k[a] += l[a] * (s[a] * x - c[a] * y);
+            x += h[a] * e1[a];
+            y += h[a] * e2[a];
         }
     }
 
@@ -491,17 +492,27 @@ impl Chain {
             *at = (first + j) * stride + off;
         }
         let (mut wx, mut wy) = ([0.0; B], [0.0; B]);
-        // Each link's coefficients are formed apart from the running sums, so that a link waits
-        // on the one before for two products and three sums a pass, not for five products.
-        let coefficients = |a: usize| (l[a] * c[a], l[a] * s[a], u[a][0] * dinv[a], u[a][1] * dinv[a]);
+        // Each pass carries two running sums `w` from link to link, `w' = w + u rho` with `rho
+        // = x - l . w` (elimination; `u` over `d`, `l = (l c, l s)`), `w' = w + l x_a` with `x_a
+        // = x / d - u . w` (substitution), and the solve is bound by that chain's latency, not
+        // by its arithmetic. Written as `w' = A w + b` with the link's `A = I - u l^T` (its
+        // transpose in the substitution) formed off the chain, a link waits on the one before
+        // for one product and two sums instead of three products and three sums; the link's
+        // own value (`rho`, `x_a`) is formed off the chain too. The same equations as
+        // `eliminate` and `substitute_from` (tested equal to round-off), regrouped.
+        let coefficients = |a: usize| {
+            let (lc, ls, ux, uy) = (l[a] * c[a], l[a] * s[a], u[a][0] * dinv[a], u[a][1] * dinv[a]);
+            (lc, ls, ux, uy)
+        };
         for a in (0..n).rev() {
             let (lc, ls, ux, uy) = coefficients(a);
+            let (a00, a01, a10, a11) = (1.0 - ux * lc, ux * ls, uy * lc, 1.0 - uy * ls);
             for j in 0..B {
                 let x = &mut xs[start[j] + a];
-                let rho = *x - (lc * wx[j] + ls * wy[j]);
-                wx[j] += ux * rho;
-                wy[j] += uy * rho;
-                *x = rho;
+                let (x0, px, py) = (*x, wx[j], wy[j]);
+                *x = x0 - (lc * px + ls * py);
+                wx[j] = (a00 * px + ux * x0) - a01 * py;
+                wy[j] = (a11 * py + uy * x0) - a10 * px;
             }
         }
         for j in 0..B {
@@ -515,12 +526,14 @@ impl Chain {
         }
         for a in 0..n {
             let (lc, ls, ux, uy) = coefficients(a);
+            let (b00, b01, b10, b11) = (1.0 - lc * ux, lc * uy, ls * ux, 1.0 - ls * uy);
+            let (bx, by) = (lc * dinv[a], ls * dinv[a]);
             for j in 0..B {
                 let x = &mut xs[start[j] + a];
-                let xa = *x * dinv[a] - (ux * wx[j] + uy * wy[j]);
-                *x = xa;
-                wx[j] += lc * xa;
-                wy[j] += ls * xa;
+                let (x0, px, py) = (*x, wx[j], wy[j]);
+                *x = x0 * dinv[a] - (ux * px + uy * py);
+                wx[j] = (b00 * px + bx * x0) - b01 * py;
+                wy[j] = (b11 * py + by * x0) - b10 * px;
             }
         }
     }
@@ -626,14 +639,13 @@ impl Chain {
         &self,
         omega: &[f64],
         rates: (&[f64], f64),
-        gravity: [f64; 2],
         direction: (&[f64], &[f64], f64),
         forcing: Option<(&[f64], f64)>,
         sh: &Shared,
         out: &mut [f64],
         ws: &Workspace,
     ) -> std::result::Result<f64, Singular> {
-        let mut row = [self.tangent_shared_rhs(omega, rates, gravity, direction, forcing, sh, out, ws)];
+        let mut row = [self.tangent_shared_rhs(omega, rates, direction, forcing, sh, out, ws)];
         self.solve_factored_many(ws, out, (0, 0), &mut row)?;
         Ok(row[0])
     }
@@ -646,7 +658,6 @@ impl Chain {
         &self,
         omega: &[f64],
         (accel, x_ddot): (&[f64], f64),
-        gravity: [f64; 2],
         (d_theta, d_omega, d_v): (&[f64], &[f64], f64),
         forcing: Option<(&[f64], f64)>,
         sh: &Shared,
@@ -655,9 +666,8 @@ impl Chain {
     ) -> f64 {
         let n = self.n();
         let (l, h, s, c) = (&self.lengths[..n], &self.h[..n], &ws.sin[..n], &ws.cos[..n]);
-        let [gx, gy] = gravity;
         let cart = self.cart.is_some();
-        // d(rhs) = (gravity) d theta - d theta cos_sums + d theta sin_sums + cos(d theta omega^2)
+        // d(rhs) = (gravity - cos_sums + sin_sums) d theta ([`Chain::sums`]) + cos(d theta omega^2)
         //          - sin(2 omega d omega + d theta accel), the last two in one pass each way:
         // with u = d theta omega^2 and w = 2 omega d omega + d theta accel, the coupled sums
         // combine into sum l (u c + w s, u s - w c) from above and sum h (...) from below.
@@ -667,7 +677,7 @@ impl Chain {
             let (sa, ca, dth) = (s[a], c[a], d_theta[a]);
             let u = dth * omega[a] * omega[a];
             let w = 2.0 * omega[a] * d_omega[a] + dth * accel[a];
-            out[a] = (gy * h[a] * ca - gx * h[a] * sa) * dth - dth * sh.cos_sums[a] + dth * sh.sin_sums[a] + h[a] * (ca * pa + sa * pb);
+            out[a] = dth * sh.stiffness[a] + h[a] * (ca * pa + sa * pb);
             if cart {
                 out[a] += h[a] * sa * dth * x_ddot;
                 row += h[a] * (ca * u + sa * w);
@@ -934,7 +944,7 @@ impl Columns {
                 if params {
                     chain.prepare_forcing(&At::Lagrangian { omega, accel, x_ddot }, load, sc, ws);
                 }
-                chain.sums(omega, accel, shared, ws);
+                chain.sums(omega, accel, load.gravity, shared, ws);
                 for (c, dir) in dirs.iter().enumerate() {
                     let (col, o) = (&cols[c * m..(c + 1) * m], &mut out[c * m..(c + 1) * m]);
                     let forcing = match *dir {
@@ -947,7 +957,6 @@ impl Columns {
                     rows[c] = chain.tangent_shared_rhs(
                         omega,
                         (accel, x_ddot),
-                        load.gravity,
                         (&col[..n], &col[n..2 * n], dv),
                         forcing.map(|bx| (&sc.b[..], bx)),
                         shared,
@@ -1171,8 +1180,8 @@ mod tests {
                 let mut d = vec![0.0; n];
                 let zero = vec![0.0; n];
                 let mut sh = Shared::new(n);
-                chain.share(&omega, &acc, &mut sh, &mut ws).unwrap();
-                let dx = chain.tangent_shared(&omega, (&acc, r.cart), load.gravity, (&zero, &zero, 0.0), Some((&b, bx)), &sh, &mut d, &ws).unwrap();
+                chain.share(&omega, &acc, load.gravity, &mut sh, &mut ws).unwrap();
+                let dx = chain.tangent_shared(&omega, (&acc, r.cart), (&zero, &zero, 0.0), Some((&b, bx)), &sh, &mut d, &ws).unwrap();
                 let eps = 1e-6;
                 let at = |e: f64| {
                     let c = moved(&chain, p, e);
@@ -1209,8 +1218,8 @@ mod tests {
             let dx0 = chain.tangent_general(&theta, &omega, (&acc, r.cart), &load, (&dth, &dw, dv), &mut want, &mut scratch, &mut ws).unwrap();
             chain.trig(&theta, &mut ws);
             let mut sh = Shared::new(n);
-            chain.share(&omega, &acc, &mut sh, &mut ws).unwrap();
-            let dx = chain.tangent_shared(&omega, (&acc, r.cart), load.gravity, (&dth, &dw, dv), None, &sh, &mut got, &ws).unwrap();
+            chain.share(&omega, &acc, load.gravity, &mut sh, &mut ws).unwrap();
+            let dx = chain.tangent_shared(&omega, (&acc, r.cart), (&dth, &dw, dv), None, &sh, &mut got, &ws).unwrap();
             for a in 0..n {
                 assert!(close(got[a], want[a]), "{a}: {} vs {}", got[a], want[a]);
             }
