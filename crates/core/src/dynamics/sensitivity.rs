@@ -447,10 +447,11 @@ impl Chain {
     /// `ws` (no divisions): column `c`'s `x` (holding `r`) at `xs[c * stride + off..][..n]`, its
     /// cart row `rows[c]` (the cart's own right-hand side), replaced by the base's acceleration
     /// along x, `(row - w_x)` over the cart's articulated inertia (0 without a cart). Each
-    /// column's arithmetic is that of [`Chain::eliminate`] and [`Chain::substitute_from`];
-    /// side by side, the columns' chains of dependent operations (each link waits on the sums
-    /// of the links before it) overlap instead of running one after another. `at`: `(stride,
-    /// off)`.
+    /// column solves the equations of [`Chain::eliminate`] and [`Chain::substitute_from`],
+    /// regrouped ([`Chain::solve_block`]; equal to round-off, a column's bits not depending on
+    /// the other columns); side by side, the columns' chains of dependent operations (each link
+    /// waits on the sums of the links before it) overlap instead of running one after another.
+    /// `at`: `(stride, off)`.
     fn solve_factored_many(&self, ws: &Workspace, xs: &mut [f64], at: (usize, usize), rows: &mut [f64]) -> std::result::Result<(), Singular> {
         let k = rows.len();
         // The cart's articulated inertia is the same for every column (the factorisation's).
