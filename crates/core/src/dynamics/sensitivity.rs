@@ -770,7 +770,7 @@ impl Columns {
         out: &mut [f64],
         evaluated: Evaluated,
     ) -> std::result::Result<(), Singular> {
-        if chain.n() == 2 && chain.cart.is_none() {
+        if chain.n() == 2 {
             self.rates_double(chain, load, y, dy, cols, out, evaluated)
         } else {
             let factored = match evaluated {
@@ -781,7 +781,7 @@ impl Columns {
         }
     }
 
-    /// [`Columns::rates`] of the double pendulum without a cart, in closed form: at N = 2 the
+    /// [`Columns::rates`] of the double pendulum, on a cart or not, in closed form: at N = 2 the
     /// recursions' fixed cost outweighs their arithmetic (and the Lagrangian evaluation, a
     /// closed form too, leaves no factorisation to reuse). The tangents are
     /// [`Chain::tangent_shared_rhs`]'s and [`Chain::hamilton_tangent_rhs`]'s at N = 2 written out
@@ -798,6 +798,10 @@ impl Columns {
     /// then the losses' terms and the forcings ([`Chain::lagrangian_forcing`]'s and
     /// [`Chain::hamiltonian_forcing`]'s, written out: a link parameter's through the derivatives
     /// of `M`'s entries and `h_a`); the 2 x 2 solve by the adjugate, one division per evaluation.
+    /// A cart adds its row, coupled to the links by `b_a = h_a cos theta_a` (`M`'s third row
+    /// `(b_1, b_2, total mass)`): the derivatives of `b`, of the cart's velocity terms (`h_a sin
+    /// theta_a w_a^2` in its row; `-h_a sin theta_a v w_a` in `p_dot_a`) and of its damping; the
+    /// 3 x 3 solve closes with the Schur complement, one more division per evaluation.
     #[allow(clippy::too_many_arguments)]
     fn rates_double(
         &mut self,
@@ -830,7 +834,29 @@ impl Columns {
             return Err(Singular(0));
         }
         let inv = 1.0 / det;
-        let solve = |r: [f64; 2]| [(d2 * r[0] - kc * r[1]) * inv, (d1 * r[1] - kc * r[0]) * inv];
+        // det A^-1 applied to (a, b), A the links' 2 x 2 block: the adjugate's product.
+        let adj = |a: f64, b: f64| [d2 * a - kc * b, d1 * b - kc * a];
+        // With a cart, `b = h cos theta` couples it to the links and its row closes the system
+        // with the Schur complement `total - b . A^-1 b` (scaled by det, as the evaluation's).
+        let cart = chain.cart.map(|c| (c.mass + chain.total_mass(), c.damping));
+        let (b1, b2) = (h1 * c1, h2 * c2);
+        let zb = adj(b1, b2);
+        let schur = match cart {
+            Some((total, _)) => {
+                let schur_det = total * det - (b1 * zb[0] + b2 * zb[1]);
+                if !(schur_det > PIVOT_TOL * total * det) {
+                    return Err(Singular(0));
+                }
+                1.0 / schur_det
+            }
+            None => 0.0,
+        };
+        // `M (d a, d x_ddot) = (r, r_x)`: the links' rows, then (with a cart) its row.
+        let solve = |r: [f64; 2], rx: f64| {
+            let ra = adj(r[0], r[1]);
+            let x = if cart.is_some() { (rx * det - (b1 * ra[0] + b2 * ra[1])) * schur } else { 0.0 };
+            ([(ra[0] - zb[0] * x) * inv, (ra[1] - zb[1] * x) * inv], x)
+        };
         let [gx, gy] = load.gravity;
         let (g1, g2) = (h1 * (gy * c1 - gx * s1), h2 * (gy * c2 - gx * s2));
         // Gravity's generalized forces per unit h_a, and their derivatives along g.
@@ -838,16 +864,17 @@ impl Columns {
         let lossy = chain.lossy_joints();
         let (l1, m1, m2, c_1, c_2) = (chain.lengths[0], chain.masses[0], chain.masses[1], chain.com[0], chain.com[1]);
         // A link parameter's derivatives of d_a = I_a + m_a c_a^2 + l_a^2 m_below, h_a = m_a c_a
-        // + l_a m_below and k ([`Chain::new`]'s; a lower link's length moves none).
+        // + l_a m_below and k ([`Chain::new`]'s; a lower link's length moves none), and of the
+        // total mass a cart carries.
         let derivatives = |dir: Direction| match dir {
-            Direction::Param(Param::Inertia(0)) => (1.0, 0.0, 0.0, 0.0, 0.0),
-            Direction::Param(Param::Inertia(_)) => (0.0, 1.0, 0.0, 0.0, 0.0),
-            Direction::Param(Param::Length(0)) => (2.0 * l1 * m2, 0.0, m2, 0.0, m2 * c_2),
-            Direction::Param(Param::Mass(0)) => (c_1 * c_1, 0.0, c_1, 0.0, 0.0),
-            Direction::Param(Param::Mass(_)) => (l1 * l1, c_2 * c_2, l1, c_2, l1 * c_2),
-            Direction::Param(Param::Com(0)) => (2.0 * m1 * c_1, 0.0, m1, 0.0, 0.0),
-            Direction::Param(Param::Com(_)) => (0.0, 2.0 * m2 * c_2, 0.0, m2, l1 * m2),
-            _ => (0.0, 0.0, 0.0, 0.0, 0.0),
+            Direction::Param(Param::Inertia(0)) => (1.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+            Direction::Param(Param::Inertia(_)) => (0.0, 1.0, 0.0, 0.0, 0.0, 0.0),
+            Direction::Param(Param::Length(0)) => (2.0 * l1 * m2, 0.0, m2, 0.0, m2 * c_2, 0.0),
+            Direction::Param(Param::Mass(0)) => (c_1 * c_1, 0.0, c_1, 0.0, 0.0, 1.0),
+            Direction::Param(Param::Mass(_)) => (l1 * l1, c_2 * c_2, l1, c_2, l1 * c_2, 1.0),
+            Direction::Param(Param::Com(0)) => (2.0 * m1 * c_1, 0.0, m1, 0.0, 0.0, 0.0),
+            Direction::Param(Param::Com(_)) => (0.0, 2.0 * m2 * c_2, 0.0, m2, l1 * m2, 0.0),
+            _ => (0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
         };
         // `-d/dg` of gravity's `-g h_a sin theta_a` and a loss coefficient's `d Q / d P`.
         let explicit = |dir: Direction, omega: &[f64], r: &mut [f64; 2]| match dir {
@@ -861,6 +888,7 @@ impl Columns {
         match form {
             Form::Lagrangian => {
                 let (w1, w2, a1, a2) = (y[2], y[3], dy[2], dy[3]);
+                let xdd = if cart.is_some() { dy[5] } else { 0.0 };
                 let (kw1, kw2) = (kc * w1 * w1, kc * w2 * w2);
                 // What multiplies the derivatives in `-d(M a - F)/dP`, row by row.
                 let (k1, k2) = (c12 * a2 + s12 * w2 * w2, c12 * a1 - s12 * w1 * w1);
@@ -876,26 +904,49 @@ impl Columns {
                         chain.add_loss_tangent(&y[2..4], &col[2..4], &mut r);
                     }
                     explicit(dir, &y[2..4], &mut r);
-                    let (dd1, dd2, dh1, dh2, dk) = derivatives(dir);
+                    let (dd1, dd2, dh1, dh2, dk, dtotal) = derivatives(dir);
                     r[0] -= dd1 * a1 - dh1 * f1 + dk * k1;
                     r[1] -= dd2 * a2 - dh2 * f2 + dk * k2;
-                    let [e1, e2] = solve(r);
+                    let mut rx = 0.0;
+                    if let Some((_, damping)) = cart {
+                        // The coupling's `d b_a = dh_a cos theta_a - h_a sin theta_a d theta_a`;
+                        // the cart's row `r_x = F - c v + sum h_a sin theta_a w_a^2`.
+                        let (dv, db1, db2) = (col[5], dh1 * c1 - h1 * s1 * dt1, dh2 * c2 - h2 * s2 * dt2);
+                        r[0] -= db1 * xdd;
+                        r[1] -= db2 * xdd;
+                        rx = (dh1 * s1 + h1 * c1 * dt1) * w1 * w1 + 2.0 * h1 * s1 * w1 * dw1 + (dh2 * s2 + h2 * c2 * dt2) * w2 * w2
+                            + 2.0 * h2 * s2 * w2 * dw2
+                            - damping * dv
+                            - (db1 * a1 + db2 * a2 + dtotal * xdd);
+                        o[4] = dv;
+                    }
+                    let ([e1, e2], ex) = solve(r, rx);
                     (o[0], o[1], o[2], o[3]) = (dw1, dw2, e1, e2);
+                    if cart.is_some() {
+                        o[5] = ex;
+                    }
                 }
             }
             Form::Hamiltonian => {
                 let (w1, w2) = (dy[0], dy[1]);
+                let v = if cart.is_some() { dy[4] } else { 0.0 };
                 let (ks, ww) = (k * s12, w1 * w2);
                 for (c, &dir) in dirs.iter().enumerate() {
                     let (col, o) = (&cols[c * m..(c + 1) * m], &mut out[c * m..(c + 1) * m]);
                     let (dt1, dt2, dp1, dp2) = (col[0], col[1], col[2], col[3]);
                     let d12 = dt1 - dt2;
-                    let (dd1, dd2, dh1, dh2, dk) = derivatives(dir);
-                    // The momenta's derivative at fixed rates, `(dM/dP) omega`, comes off first.
-                    let [dw1, dw2] = solve([
-                        dp1 + ks * d12 * w2 - (dd1 * w1 + dk * c12 * w2),
-                        dp2 + ks * d12 * w1 - (dk * c12 * w1 + dd2 * w2),
-                    ]);
+                    let (dd1, dd2, dh1, dh2, dk, dtotal) = derivatives(dir);
+                    let (db1, db2) = (dh1 * c1 - h1 * s1 * dt1, dh2 * c2 - h2 * s2 * dt2);
+                    // The momenta's derivative at fixed rates, `(dM/dP) omega`, comes off first
+                    // (with a cart, `p_a` has `b_a v` and `p_x = total v + b . omega`).
+                    let dpx = if cart.is_some() { col[5] } else { 0.0 };
+                    let ([dw1, dw2], dv) = solve(
+                        [
+                            dp1 + ks * d12 * w2 - (dd1 * w1 + dk * c12 * w2) - db1 * v,
+                            dp2 + ks * d12 * w1 - (dk * c12 * w1 + dd2 * w2) - db2 * v,
+                        ],
+                        dpx - (db1 * w1 + db2 * w2 + dtotal * v),
+                    );
                     let q = k * (c12 * d12 * ww + s12 * (dw1 * w2 + w1 * dw2));
                     let mut r = [g1 * dt1 - q, g2 * dt2 + q];
                     if lossy {
@@ -905,6 +956,12 @@ impl Columns {
                     // `p_dot`'s derivative at fixed angles and rates.
                     r[0] += dh1 * f1 - dk * s12 * ww;
                     r[1] += dh2 * f2 + dk * s12 * ww;
+                    if let Some((_, damping)) = cart {
+                        // `p_dot_a`'s `-h_a sin theta_a v w_a`; `p_x_dot = F - c v`.
+                        r[0] -= dh1 * s1 * v * w1 + h1 * (c1 * dt1 * v * w1 + s1 * (dv * w1 + v * dw1));
+                        r[1] -= dh2 * s2 * v * w2 + h2 * (c2 * dt2 * v * w2 + s2 * (dv * w2 + v * dw2));
+                        (o[4], o[5]) = (dv, -damping * dv);
+                    }
                     (o[0], o[1], o[2], o[3]) = (dw1, dw2, r[0], r[1]);
                 }
             }
@@ -1258,9 +1315,11 @@ mod tests {
         use crate::dynamics::system::{ChainSystem, OdeSystem};
         use crate::dynamics::torque::Builtin;
         // Every path that leaves its factorisation (N = 3: the ideal, the lossy and the cart's
-        // recursions, both forms; N = 2 in the Hamiltonian form) and one that leaves the trig only.
+        // recursions, both forms; N = 2 in the Hamiltonian form) and those that leave the trig only (N = 2
+        // in the Lagrangian form, on a cart and not).
         let two = Chain::new(&[1.0, 0.7], &[1.2, 0.8], Some(&[0.6, 0.3]), Some(&[0.05, 0.02]), 9.81).unwrap();
-        for chain in chains().into_iter().chain([two]) {
+        let two_on_cart = two.clone().with_cart(Some(Cart::new(2.0, 0.4).unwrap())).unwrap();
+        for chain in chains().into_iter().chain([two, two_on_cart]) {
             let n = chain.n();
             for form in Form::ALL {
                 let mut sys = ChainSystem::new(&chain, Builtin::None, form);
@@ -1285,35 +1344,46 @@ mod tests {
 
     #[test]
     fn the_double_pendulums_closed_form_columns_are_the_recursions() {
-        // Both forms, every input (the losses' on the lossy chain), under gravity with a sideways
-        // part (a pivot's acceleration), at a state where every term of the tangent is nonzero.
+        // Both forms, every input (the losses' on the lossy chains), under gravity with a sideways
+        // part (a pivot's acceleration; with a cart, the cart's force instead), at a state where
+        // every term of the tangent is nonzero; with and without a cart, lossy and not.
         let two = Chain::new(&[1.0, 0.7], &[1.2, 0.8], Some(&[0.6, 0.3]), Some(&[0.05, 0.02]), 9.81).unwrap();
         let lossy = two.clone().with_losses(&[0.3, 0.2], &[0.05, 0.03], 0.5).unwrap();
-        let (theta, omega, tau) = ([0.4, -1.1], [0.7, -0.3], [0.2, -0.1]);
-        let load = Load { gravity: [1.3, -9.0], cart_force: 0.0 };
-        for chain in [two, lossy] {
+        let on_cart = |c: &Chain| c.clone().with_cart(Some(Cart::new(2.0, 0.4).unwrap())).unwrap();
+        let (theta, omega, tau, v) = ([0.4, -1.1], [0.7, -0.3], [0.2, -0.1], 0.35);
+        for chain in [two.clone(), lossy.clone(), on_cart(&two), on_cart(&lossy)] {
+            let cart = chain.cart.is_some();
+            let load = if cart { Load { gravity: [0.0, -9.0], cart_force: 0.5 } } else { Load { gravity: [1.3, -9.0], cart_force: 0.0 } };
             let mut inputs = vec![Input::Theta0, Input::Omega0, Input::Lengths, Input::Masses, Input::Com, Input::Inertia, Input::G];
             if chain.lossy_joints() {
                 inputs.extend([Input::Damping, Input::Friction]);
             }
+            let v = if cart { v } else { 0.0 };
             let mut accel = [0.0; 2];
-            chain.accelerations_general(&theta, &omega, 0.0, &tau, &load, &mut accel, &mut Workspace::new(2)).unwrap();
+            let rates = chain.accelerations_general(&theta, &omega, v, &tau, &load, &mut accel, &mut Workspace::new(2)).unwrap();
             let mut p = [0.0; 2];
-            chain.momenta_into(&theta, &omega, &mut p, &mut Workspace::new(2));
+            let p_x = chain.momenta_general(&theta, &omega, v, &mut p, &mut Workspace::new(2));
             for form in Form::ALL {
-                // The state and its rates: (theta, omega) and (omega, accel), or (theta, p) and
-                // (omega, p_dot) (whose p_dot the columns do not read).
-                let (y, dy) = match form {
-                    Form::Lagrangian => ([theta[0], theta[1], omega[0], omega[1]], [omega[0], omega[1], accel[0], accel[1]]),
-                    Form::Hamiltonian => ([theta[0], theta[1], p[0], p[1]], [omega[0], omega[1], f64::NAN, f64::NAN]),
+                // The state and its rates: (theta, omega, [x, v]) and (omega, accel, [v,
+                // x_ddot]), or (theta, p, [x, p_x]) and (omega, p_dot, [v, p_x_dot]) (whose
+                // p_dot the columns do not read).
+                let (mut y, mut dy) = match form {
+                    Form::Lagrangian => (vec![theta[0], theta[1], omega[0], omega[1]], vec![omega[0], omega[1], accel[0], accel[1]]),
+                    Form::Hamiltonian => (vec![theta[0], theta[1], p[0], p[1]], vec![omega[0], omega[1], f64::NAN, f64::NAN]),
                 };
+                if cart {
+                    match form {
+                        Form::Lagrangian => (y.extend([0.2, v]), dy.extend([v, rates.cart])),
+                        Form::Hamiltonian => (y.extend([0.2, p_x]), dy.extend([v, f64::NAN])),
+                    };
+                }
                 let mut cols = Columns::new(&chain, form, directions(&inputs, 2).unwrap());
                 let s: Vec<f64> = (0..cols.len()).map(|i| ((i * 7 % 11) as f64 - 5.0) / 3.0).collect();
                 let (mut closed, mut general) = (vec![0.0; cols.len()], vec![0.0; cols.len()]);
                 cols.rates_double(&chain, &load, &y, &dy, &s, &mut closed, Evaluated::Nothing).unwrap();
                 cols.rates_general(&chain, &load, &y, &dy, &s, &mut general, None).unwrap();
                 for (i, (a, b)) in closed.iter().zip(&general).enumerate() {
-                    assert!((a - b).abs() <= 1e-13 * b.abs().max(1.0), "{form:?}, value {i}: {a} vs {b}");
+                    assert!((a - b).abs() <= 1e-13 * b.abs().max(1.0), "{form:?}, cart {cart}, value {i}: {a} vs {b}");
                 }
             }
         }
