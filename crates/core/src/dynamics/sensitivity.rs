@@ -501,10 +501,7 @@ impl Chain {
         // for one product and two sums instead of three products and three sums; the link's
         // own value (`rho`, `x_a`) is formed off the chain too. The same equations as
         // `eliminate` and `substitute_from` (tested equal to round-off), regrouped.
-        let coefficients = |a: usize| {
-            let (lc, ls, ux, uy) = (l[a] * c[a], l[a] * s[a], u[a][0] * dinv[a], u[a][1] * dinv[a]);
-            (lc, ls, ux, uy)
-        };
+        let coefficients = |a: usize| (l[a] * c[a], l[a] * s[a], u[a][0] * dinv[a], u[a][1] * dinv[a]);
         for a in (0..n).rev() {
             let (lc, ls, ux, uy) = coefficients(a);
             let (a00, a01, a10, a11) = (1.0 - ux * lc, ux * ls, uy * lc, 1.0 - uy * ls);
@@ -840,6 +837,8 @@ impl Columns {
         // with the Schur complement `total - b . A^-1 b` (scaled by det, as the evaluation's).
         let cart = chain.cart.map(|c| (c.mass + chain.total_mass(), c.damping));
         let (b1, b2) = (h1 * c1, h2 * c2);
+        // The coupling's derivative, `d b_a = dh_a cos theta_a - h_a sin theta_a d theta_a`.
+        let db = |dh1: f64, dh2: f64, dt1: f64, dt2: f64| (dh1 * c1 - h1 * s1 * dt1, dh2 * c2 - h2 * s2 * dt2);
         let zb = adj(b1, b2);
         let schur = match cart {
             Some((total, _)) => {
@@ -909,9 +908,8 @@ impl Columns {
                     r[1] -= dd2 * a2 - dh2 * f2 + dk * k2;
                     let mut rx = 0.0;
                     if let Some((_, damping)) = cart {
-                        // The coupling's `d b_a = dh_a cos theta_a - h_a sin theta_a d theta_a`;
-                        // the cart's row `r_x = F - c v + sum h_a sin theta_a w_a^2`.
-                        let (dv, db1, db2) = (col[5], dh1 * c1 - h1 * s1 * dt1, dh2 * c2 - h2 * s2 * dt2);
+                        // The cart's row `r_x = F - c v + sum h_a sin theta_a w_a^2`.
+                        let (dv, (db1, db2)) = (col[5], db(dh1, dh2, dt1, dt2));
                         r[0] -= db1 * xdd;
                         r[1] -= db2 * xdd;
                         rx = (dh1 * s1 + h1 * c1 * dt1) * w1 * w1 + 2.0 * h1 * s1 * w1 * dw1 + (dh2 * s2 + h2 * c2 * dt2) * w2 * w2
@@ -936,7 +934,7 @@ impl Columns {
                     let (dt1, dt2, dp1, dp2) = (col[0], col[1], col[2], col[3]);
                     let d12 = dt1 - dt2;
                     let (dd1, dd2, dh1, dh2, dk, dtotal) = derivatives(dir);
-                    let (db1, db2) = (dh1 * c1 - h1 * s1 * dt1, dh2 * c2 - h2 * s2 * dt2);
+                    let (db1, db2) = db(dh1, dh2, dt1, dt2);
                     // The momenta's derivative at fixed rates, `(dM/dP) omega`, comes off first
                     // (with a cart, `p_a` has `b_a v` and `p_x = total v + b . omega`).
                     let dpx = if cart.is_some() { col[5] } else { 0.0 };
