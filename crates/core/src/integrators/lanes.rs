@@ -226,6 +226,14 @@ impl Rk4Lanes {
         active: &Lane,
         sys: &mut impl LaneSystem,
     ) -> std::result::Result<[bool; LANES], (usize, LaneSingular)> {
+        // A system of four lanes (the double pendulum, a pendulum on a cart) keeps its state,
+        // stages and sums in fixed-size arrays, which LLVM holds in registers across the step
+        // where it cannot do so for the heap buffers: the same operations, so the same bits.
+        match y.len() {
+            4 => return fixed::<4>(y, t, dt, active, sys, &mut self.scratch),
+            6 => return fixed::<6>(y, t, dt, active, sys, &mut self.scratch),
+            _ => {}
+        }
         let half = 0.5 * dt;
         let Rk4Lanes { k, tmp, scratch, .. } = self;
         // Loops over whole lanes by iterators (no bounds checks), so they vectorise.
@@ -271,4 +279,58 @@ impl Rk4Lanes {
         }
         Ok(nonfinite)
     }
+}
+
+/// [`Rk4Lanes::step_system_at`] of a system of `M` lanes, its buffers fixed-size arrays on the
+/// stack: operation for operation the same step.
+#[inline(always)]
+fn fixed<const M: usize>(
+    y: &mut [Lane],
+    t: &Lane,
+    dt: f64,
+    active: &Lane,
+    sys: &mut impl LaneSystem,
+    scratch: &mut LaneScratch,
+) -> std::result::Result<[bool; LANES], (usize, LaneSingular)> {
+    let half = 0.5 * dt;
+    let y0: [Lane; M] = std::array::from_fn(|m| y[m]);
+    let mut k = [[[0.0; LANES]; M]; 4];
+    let mut tmp = y0;
+    for stage in 0..4 {
+        let at = each(|i| match stage {
+            0 => t[i],
+            3 => t[i] + dt,
+            _ => t[i] + half,
+        });
+        sys.rates(&at, &tmp, &mut k[stage], scratch, active).map_err(|s| (stage, s.seen_in(&tmp)))?;
+        if stage < 3 {
+            let h = if stage < 2 { half } else { dt };
+            for m in 0..M {
+                for i in 0..LANES {
+                    tmp[m][i] = h.mul_add(k[stage][m][i], y0[m][i]);
+                }
+            }
+        }
+    }
+    let sixth = dt / 6.0;
+    let mut poison = [0.0; LANES];
+    let [k1, k2, k3, k4] = &k;
+    for m in 0..M {
+        for i in 0..LANES {
+            tmp[m][i] = sixth.mul_add(2.0f64.mul_add(k2[m][i] + k3[m][i], k1[m][i]) + k4[m][i], y0[m][i]);
+            poison[i] += tmp[m][i] * 0.0;
+        }
+    }
+    let (mut keep, mut nonfinite) = ([false; LANES], [false; LANES]);
+    for i in 0..LANES {
+        let finite = poison[i] == 0.0;
+        keep[i] = active[i] > 0.0 && finite;
+        nonfinite[i] = active[i] > 0.0 && !finite;
+    }
+    for (yv, t) in y.iter_mut().zip(tmp.iter()) {
+        for i in 0..LANES {
+            yv[i] = if keep[i] { t[i] } else { yv[i] };
+        }
+    }
+    Ok(nonfinite)
 }

@@ -180,7 +180,7 @@ impl Bank {
                 g.force[j] = forces.get(base + j).copied().unwrap_or(0.0);
             }
             let e = run_group(path, chain, dt, g, copies, u, span, &on);
-            report(chain, dt, g, copies, states, balance);
+            report_on(path, chain, dt, g, copies, states, balance);
             e.map(|(j, e)| (base + j, e))
         };
         // One group runs here: the pool's hand-over would cost more than its steps.
@@ -214,7 +214,7 @@ impl Bank {
 
     /// Every copy's state (count x (2N, and 2 more with a cart)) and balance (count x 3).
     pub fn report_into(&mut self, states: &mut [f64], balance: &mut [f64]) {
-        let (chain, dt, (row, _)) = (&self.chain, self.dt, layout(&self.chain));
+        let (chain, dt, path, (row, _)) = (&self.chain, self.dt, self.path, layout(&self.chain));
         for (((g, copies), s), b) in self
             .groups
             .iter_mut()
@@ -222,7 +222,7 @@ impl Bank {
             .zip(states.chunks_mut(LANES * row))
             .zip(balance.chunks_mut(LANES * 3))
         {
-            report(chain, dt, g, copies, s, b);
+            report_on(path, chain, dt, g, copies, s, b);
         }
     }
 
@@ -235,7 +235,34 @@ impl Bank {
     }
 }
 
+/// [`report`] on the chosen path: its energies' product-sums are `mul_add`s, a hardware FMA
+/// inside the path's `#[target_feature]` (the same correctly rounded value as the baseline
+/// build's call to `fma()`, which cost this report as much as two of the group's rk4 steps).
+fn report_on(path: Path, chain: &Chain, dt: f64, g: &mut Group, copies: &mut [Copy], states: &mut [f64], balance: &mut [f64]) {
+    match path {
+        // SAFETY: the path was checked available when chosen.
+        #[cfg(target_arch = "x86_64")]
+        Path::Avx512 => unsafe { report_avx512(chain, dt, g, copies, states, balance) },
+        #[cfg(target_arch = "x86_64")]
+        Path::Avx2 => unsafe { report_avx2(chain, dt, g, copies, states, balance) },
+        _ => report(chain, dt, g, copies, states, balance),
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,fma")]
+unsafe fn report_avx512(chain: &Chain, dt: f64, g: &mut Group, copies: &mut [Copy], states: &mut [f64], balance: &mut [f64]) {
+    report(chain, dt, g, copies, states, balance)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn report_avx2(chain: &Chain, dt: f64, g: &mut Group, copies: &mut [Copy], states: &mut [f64], balance: &mut [f64]) {
+    report(chain, dt, g, copies, states, balance)
+}
+
 /// Each copy of the group: its state row and `(t, energy, energy_error)` (the energies in lanes).
+#[inline(always)]
 fn report(
     chain: &Chain,
     dt: f64,
