@@ -7,6 +7,45 @@ pub(crate) use rayon::prelude::*;
 #[cfg(not(feature = "parallel"))]
 pub(crate) use sequential::*;
 
+/// `f` of every item, the calling thread taking part: it starts on the items at once while the
+/// pool's threads wake and join in (a short call, such as a vector environment's step between
+/// a policy's evaluations, would otherwise wait for a sleeping pool to wake and then for its own
+/// wake-up at the end). Items are taken in any order by any thread; each result stays with its
+/// index, so the results are the same whichever thread computed them.
+pub(crate) fn each_shared<T: Send, R: Send>(items: Vec<T>, f: impl Fn(T) -> R + Sync) -> Vec<R> {
+    #[cfg(feature = "parallel")]
+    {
+        use std::sync::atomic::{AtomicUsize, Ordering};
+        use std::sync::Mutex;
+        let count = items.len();
+        let queue = Mutex::new(items.into_iter().enumerate());
+        let results = Mutex::new((0..count).map(|_| None).collect::<Vec<Option<R>>>());
+        let done = AtomicUsize::new(0);
+        let drain = || loop {
+            let Some((i, item)) = queue.lock().unwrap_or_else(|e| e.into_inner()).next() else { break };
+            let r = f(item);
+            results.lock().unwrap_or_else(|e| e.into_inner())[i] = Some(r);
+            done.fetch_add(1, Ordering::Release);
+        };
+        rayon::in_place_scope(|s| {
+            for _ in 1..rayon::current_num_threads().min(count) {
+                s.spawn(|_| drain());
+            }
+            drain();
+            // The others' last items are at most one item's time away: waited for here rather
+            // than asleep (the scope's own wait), which a pool thread would have to wake from.
+            while done.load(Ordering::Acquire) < count {
+                std::hint::spin_loop();
+            }
+        });
+        results.into_inner().unwrap_or_else(|e| e.into_inner()).into_iter().map(|r| r.expect("every item is taken once")).collect()
+    }
+    #[cfg(not(feature = "parallel"))]
+    {
+        items.into_iter().map(f).collect()
+    }
+}
+
 #[cfg(not(feature = "parallel"))]
 mod sequential {
     /// `into_par_iter()`: the plain iterator.

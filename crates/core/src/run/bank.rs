@@ -15,7 +15,7 @@ use crate::dynamics::system::NON_FINITE;
 use crate::error::{Error, Result};
 use crate::integrators::lanes::{failed_at, Rk4Lanes};
 use crate::model::Chain;
-use crate::par::*;
+use crate::par::each_shared;
 use crate::trig::lanes::{Lane, Path, LANES};
 
 /// The environment variable that picks the route of the steppers: `auto` (the lanes
@@ -193,15 +193,16 @@ impl Bank {
                 ),
             ))
         } else {
-            self.groups
-                .par_iter_mut()
-                .zip(self.copies.par_chunks_mut(LANES))
-                .zip(u.par_chunks(LANES * n))
-                .zip(states.par_chunks_mut(LANES * row))
-                .zip(balance.par_chunks_mut(LANES * 3))
+            let groups = self
+                .groups
+                .iter_mut()
+                .zip(self.copies.chunks_mut(LANES))
+                .zip(u.chunks(LANES * n))
+                .zip(states.chunks_mut(LANES * row))
+                .zip(balance.chunks_mut(LANES * 3))
                 .enumerate()
-                .filter_map(one)
-                .min_by_key(|(i, _)| *i)
+                .collect();
+            each_shared(groups, one).into_iter().flatten().min_by_key(|(i, _)| *i)
         };
         match failed {
             None => Ok(()),
