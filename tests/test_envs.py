@@ -45,6 +45,38 @@ def test_the_ids_make_this_package_s_vector_env():
         v.close()
 
 
+@pytest.mark.parametrize("env_id,kwargs", [(IDS[0], {"n": 3}), (IDS[1], {"n": 2, "task": "swingup"})])
+def test_observations_are_the_documented_functions_of_the_state(env_id, kwargs):
+    """The core computes the observation from each copy's state (the lanes' sin/cos): it is the
+    documented layout of cos, sin, rates (and the cart's x, v), to the last bit or two."""
+    v = gym.make_vec(env_id, num_envs=11, **kwargs)
+    v.reset(seed=3)
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        obs = v.step(rng.uniform(-1, 1, v.action_space.shape))[0]
+    s, n = v.unwrapped.state, kwargs["n"]
+    if env_id == IDS[0]:
+        theta, omega = s[:, :n], s[:, n:]
+        want = np.concatenate([np.cos(theta), np.sin(theta), omega], axis=1)
+    else:  # (x, theta, v, omega) -> (x, cos, sin, v, omega)
+        theta = s[:, 1:n + 1]
+        want = np.concatenate([s[:, :1], np.cos(theta), np.sin(theta), s[:, n + 1:n + 2], s[:, n + 2:]], axis=1)
+    assert np.abs(theta).max() > 0.05  # the angles moved: a nontrivial check
+    np.testing.assert_allclose(obs, want, rtol=0, atol=4.5e-16)
+
+
+def test_bad_observation_columns_are_input_errors():
+    import multipendulum._core as core
+    st = core.Steppers(mp.Chain.rods([1, 1], [1, 1])._c, 3, method="rk4", rtol=1e-10, atol=1e-12, max_steps=10, dt=0.01)
+    states = np.zeros(3 * 4)
+    for columns, message in [([3, 0], "kind 0, 1 or 2"), ([1, -1], "index >= 0"), ([1, 4], "outside a state row of 4"),
+                             ([1], "(kind, index) pairs")]:
+        with pytest.raises(mp.InputError, match=message.replace("(", r"\(").replace(")", r"\)")):
+            st.observe(states, np.array(columns, dtype=np.int64))
+    with pytest.raises(mp.InputError, match="states must have count x 4 = 12 values, got 8"):
+        st.observe(np.zeros(8), np.array([1, 0], dtype=np.int64))
+
+
 # --- AcrobotCompat-v0 against gymnasium's Acrobot-v1 -------------------------------------------
 
 def test_compat_transitions_equal_gymnasium_acrobot_from_the_same_states():

@@ -35,7 +35,7 @@ pub use error::{Error, Result};
 pub use integrators::{Facts, Method};
 pub use model::{Cart, Chain};
 pub use run::events::{Condition, EventFn, EventSpec};
-pub use run::live::{Stepper, Steppers};
+pub use run::live::{Column, Stepper, Steppers};
 pub use run::simulate::Terms;
 pub use run::{simulate, simulate_batch, simulate_each, simulate_from, Checkpoint, Checkpoints, Settings, Start, Stats, Trajectory};
 pub use watch::Watch;

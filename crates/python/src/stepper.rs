@@ -103,6 +103,29 @@ impl PySteppers {
         Ok((PyArray1::from_vec(py, states), PyArray1::from_vec(py, balance)))
     }
 
+    /// An observation of every copy from `states` (count x state_len, flat, as `step` returns
+    /// them): `columns` flat pairs `(kind, index)`, kind 0 the row's value at `index`, 1 its
+    /// cosine, 2 its sine. Returns count x (number of pairs) values, flat.
+    fn observe<'py>(&self, py: Python<'py>, states: PyReadonlyArray1<'_, f64>, columns: PyReadonlyArray1<'_, i64>) -> PyResult<Bound<'py, PyArray1<f64>>> {
+        let states = slice("states", &states)?;
+        let pairs = columns.as_slice().map_err(|_| InputError::new_err("columns must be a C-contiguous int64 array"))?;
+        if pairs.len() % 2 != 0 {
+            return Err(InputError::new_err("columns must hold (kind, index) pairs"));
+        }
+        let columns = pairs
+            .chunks(2)
+            .map(|p| match (p[0], usize::try_from(p[1])) {
+                (0, Ok(i)) => Ok(core::Column::Value(i)),
+                (1, Ok(i)) => Ok(core::Column::Cos(i)),
+                (2, Ok(i)) => Ok(core::Column::Sin(i)),
+                _ => Err(InputError::new_err(format!("an observation column is (kind 0, 1 or 2, index >= 0), got ({}, {})", p[0], p[1]))),
+            })
+            .collect::<PyResult<Vec<_>>>()?;
+        let mut out = vec![0.0; self.inner.len() * columns.len()];
+        self.inner.observe_into(states, &columns, &mut out).map_err(|e| to_py(py, e))?;
+        Ok(PyArray1::from_vec(py, out))
+    }
+
     /// Every copy's state (count x state_len, flat) and its time, energy (lab frame) and
     /// energy-balance residual (count x 3, flat), as `step` returns them.
     fn report<'py>(&mut self, py: Python<'py>) -> (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>) {

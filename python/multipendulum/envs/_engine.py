@@ -146,6 +146,10 @@ class Engine:
         """(B, k): each copy's ``(theta, omega, [x, v])`` (the arrays are the engine's: copy to keep)."""
         return self._report()[0]
 
+    def observe(self, columns: npt.NDArray[np.int64]) -> Array:
+        """(B, len(columns) // 2): each copy's observation from its state (``Task.columns``)."""
+        return self._st.observe(self.states().reshape(-1), columns).reshape(self.num, -1)
+
     def balance(self) -> Array:
         """(B, 3): time, energy (lab frame) and the energy-balance residual of each copy."""
         return self._report()[1]

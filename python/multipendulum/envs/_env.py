@@ -66,7 +66,7 @@ class PendulumEnv(gym.Env[Any, Any]):
         self._engine.reset(0, theta, omega, cart)
         self._states = self._engine.states()
         self._terminated, self._warned = False, False
-        obs = self.task.observe(self._states)[0]
+        obs = self._engine.observe(self.task.columns)[0]
         if self.render_mode == "human":
             self.render()
         return obs, _info(self._engine.balance()[0])
@@ -82,7 +82,7 @@ class PendulumEnv(gym.Env[Any, Any]):
         torques, forces = self.task.inputs(action, ())
         self._engine.step(torques[None], None if forces is None else forces.reshape(1))
         self._states = self._engine.states()
-        obs = self.task.observe(self._states)
+        obs = self._engine.observe(self.task.columns)
         reward, terminated = self.task.outcome(self._states, obs)
         r = float(reward[0])
         if self._terminated:
@@ -204,7 +204,7 @@ class PendulumVectorEnv(VectorEnv[Any, Any, Any]):
             self._start(int(i), options)
         self._done[mask] = False
         self._states = self._engine.states()
-        return self.task.observe(self._states), self._infos(self._engine.balance(), mask)
+        return self._engine.observe(self.task.columns), self._infos(self._engine.balance(), mask)
 
     def _infos(self, balance: Array, mask: npt.NDArray[np.bool_]) -> Info:
         info: Info = {}
@@ -230,7 +230,7 @@ class PendulumVectorEnv(VectorEnv[Any, Any, Any]):
         self._steps[~restart] += 1
         self._states = self._engine.states()
         balance = self._engine.balance()
-        obs = self.task.observe(self._states)
+        obs = self._engine.observe(self.task.columns)
         reward, terminated = self.task.outcome(self._states, obs)
         truncated = (self._steps >= self.max_episode_steps) if self.max_episode_steps is not None \
             else np.zeros(self.num_envs, dtype=np.bool_)
@@ -247,7 +247,7 @@ class PendulumVectorEnv(VectorEnv[Any, Any, Any]):
             for i in np.flatnonzero(done):
                 self._start(int(i), None)
             self._states = self._engine.states()
-            obs = self.task.observe(self._states)
+            obs = self._engine.observe(self.task.columns)
             info.update(self._infos(self._engine.balance(), everyone))
             done = np.zeros(self.num_envs, dtype=np.bool_)
         self._done = done

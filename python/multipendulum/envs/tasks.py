@@ -20,6 +20,13 @@ from ._engine import Array, build_chain, count, per_link, positive, refuse_unkno
 #: Discrete actions of the acrobot, as gymnasium's Acrobot-v1: torque -max, 0, +max.
 DISCRETE_LEVELS = (-1.0, 0.0, 1.0)
 
+#: Kinds of observation column (``Task.columns``): a state row's value, its cosine, its sine.
+VALUE, COS, SIN = 0, 1, 2
+
+
+def _columns(*groups: Sequence[Tuple[int, int]]) -> npt.NDArray[np.int64]:
+    return np.array([c for g in groups for c in g], dtype=np.int64).ravel()
+
 
 def _wrap(a: Array) -> Array:
     """Angles into [-pi, pi)."""
@@ -102,8 +109,10 @@ class Task:
         """One start, a core state row ``(theta, omega, [x, v])``."""
         raise NotImplementedError
 
-    def observe(self, states: Array) -> Array:
-        raise NotImplementedError
+    #: The observation's columns, computed by the core from a state row (``Engine.observe``):
+    #: flat pairs ``(kind, index)``, kind :data:`VALUE`, :data:`COS` or :data:`SIN` of the row's
+    #: entry ``index``.
+    columns: npt.NDArray[np.int64]
 
     def outcome(self, states: Array, obs: Array) -> Tuple[Array, npt.NDArray[np.bool_]]:
         """-> reward (B,), terminated (B,), given the states and their observations."""
@@ -181,6 +190,8 @@ class Acrobot(Task):
         n_ = self.n
         hi = np.concatenate([np.ones(2 * n_), np.full(n_, np.inf)])
         self.single_observation_space = spaces.Box(-hi, hi, dtype=np.float64)
+        a = range(n_)
+        self.columns = _columns([(COS, i) for i in a], [(SIN, i) for i in a], [(VALUE, n_ + i) for i in a])
 
     def inputs(self, actions: object, batch: Tuple[int, ...]) -> Tuple[Array, Optional[Array]]:
         k = len(self.joints)
@@ -196,14 +207,6 @@ class Acrobot(Task):
 
     def initial(self, rng: np.random.Generator, low: float, high: float) -> Array:
         return rng.uniform(low=low, high=high, size=(2 * self.n,))
-
-    def observe(self, states: Array) -> Array:
-        n = self.n
-        obs = np.empty((len(states), 3 * n))
-        np.cos(states[:, :n], out=obs[:, :n])
-        np.sin(states[:, :n], out=obs[:, n:2 * n])
-        obs[:, 2 * n:] = states[:, n:2 * n]
-        return obs
 
     def outcome(self, states: Array, obs: Array) -> Tuple[Array, npt.NDArray[np.bool_]]:
         height = -np.einsum("ij,j->i", obs[:, :self.n], self._lengths)  # obs starts with cos theta (no BLAS threads)
@@ -261,6 +264,9 @@ class CartPole(Task):
         n_ = self.n
         hi = np.concatenate([[np.inf], np.ones(2 * n_), np.full(n_ + 1, np.inf)])
         self.single_observation_space = spaces.Box(-hi, hi, dtype=np.float64)
+        a = range(n_)
+        self.columns = _columns([(VALUE, 2 * n_)], [(COS, i) for i in a], [(SIN, i) for i in a],
+                                [(VALUE, 2 * n_ + 1)], [(VALUE, n_ + i) for i in a])
 
     def inputs(self, actions: object, batch: Tuple[int, ...]) -> Tuple[Array, Optional[Array]]:
         f = self._continuous(actions, batch)
@@ -272,16 +278,6 @@ class CartPole(Task):
         if self.task == "balance":
             s[1:n + 1] += np.pi
         return np.concatenate([s[1:n + 1], s[n + 2:], [s[0], s[n + 1]]])
-
-    def observe(self, states: Array) -> Array:
-        n = self.n
-        obs = np.empty((len(states), 3 * n + 2))
-        obs[:, 0] = states[:, 2 * n]
-        np.cos(states[:, :n], out=obs[:, 1:n + 1])
-        np.sin(states[:, :n], out=obs[:, n + 1:2 * n + 1])
-        obs[:, 2 * n + 1] = states[:, 2 * n + 1]
-        obs[:, 2 * n + 2:] = states[:, n:2 * n]
-        return obs
 
     def outcome(self, states: Array, obs: Array) -> Tuple[Array, npt.NDArray[np.bool_]]:
         n = self.n

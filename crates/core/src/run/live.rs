@@ -16,6 +16,55 @@ use crate::error::{check_finite, Error, Result};
 use crate::integrators::Method;
 use crate::model::Chain;
 use crate::par::*;
+use crate::trig::lanes::{each, sin_cos, Path, LANES};
+
+/// One column of an observation ([`Steppers::observe_into`]): entry `i` of a state row, or its
+/// cosine or sine.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Column {
+    Value(usize),
+    Cos(usize),
+    Sin(usize),
+}
+
+impl Column {
+    fn index(self) -> usize {
+        match self {
+            Column::Value(i) | Column::Cos(i) | Column::Sin(i) => i,
+        }
+    }
+}
+
+#[inline(always)]
+fn observe(states: &[f64], k: usize, columns: &[Column], out: &mut [f64]) {
+    let width = columns.len();
+    for (rows, obs) in states.chunks(LANES * k).zip(out.chunks_mut(LANES * width)) {
+        let copies = rows.len() / k;
+        for (j, &col) in columns.iter().enumerate() {
+            let lane = each(|c| if c < copies { rows[c * k + col.index()] } else { 0.0 });
+            let value = match col {
+                Column::Value(_) => lane,
+                Column::Cos(_) => sin_cos(&lane).1,
+                Column::Sin(_) => sin_cos(&lane).0,
+            };
+            for c in 0..copies {
+                obs[c * width + j] = value[c];
+            }
+        }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,fma")]
+unsafe fn observe_avx512(states: &[f64], k: usize, columns: &[Column], out: &mut [f64]) {
+    observe(states, k, columns, out)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn observe_avx2(states: &[f64], k: usize, columns: &[Column], out: &mut [f64]) {
+    observe(states, k, columns, out)
+}
 
 /// A chain, its current state and its integrator, advanced on request.
 pub struct Stepper<T> {
@@ -294,6 +343,33 @@ impl Steppers {
     /// cart's `x, v`.
     pub fn state_len(&self) -> usize {
         self.chain.state_len()
+    }
+
+    /// An observation of every copy from its state row (as [`Steppers::report_into`] writes
+    /// them, `count x state_len`): `out[c * columns.len() + j]` the `j`-th column of copy `c`,
+    /// a value of the row, or the cosine or sine of one (the lanes' `sin`/`cos`, 8 copies at a
+    /// time: what an environment's observation costs in NumPy's strided trig is most of its
+    /// Python).
+    pub fn observe_into(&self, states: &[f64], columns: &[Column], out: &mut [f64]) -> Result<()> {
+        let (count, k) = (self.len(), self.state_len());
+        if states.len() != count * k {
+            return Err(Error::input(format!("states must have count x {k} = {} values, got {}", count * k, states.len())));
+        }
+        if out.len() != count * columns.len() {
+            return Err(Error::input(format!("the observation must have count x {} values", columns.len())));
+        }
+        if let Some(c) = columns.iter().find(|c| c.index() >= k) {
+            return Err(Error::input(format!("observation column {c:?} is outside a state row of {k} values")));
+        }
+        match Path::best() {
+            // SAFETY: `best` is an available path.
+            #[cfg(target_arch = "x86_64")]
+            Path::Avx512 => unsafe { observe_avx512(states, k, columns, out) },
+            #[cfg(target_arch = "x86_64")]
+            Path::Avx2 => unsafe { observe_avx2(states, k, columns, out) },
+            _ => observe(states, k, columns, out),
+        }
+        Ok(())
     }
 
     /// Start copy `i` anew at t = 0 from `(theta0, omega0)` and the cart's `(x, v)`: a new
