@@ -16,14 +16,15 @@ bench/bench.py runs it as a subprocess for its section (f) of bench/RESULTS.md).
      only where make_vec returns our own vector env), and for scale the bare core of the
      first: ``multipendulum._core.Steppers`` of 256 copies, ``step`` over 0.2 s + ``report()``.
    The models differ (peer A: the book acrobot, one RK4 step of 0.2 s per env step; peer B:
-   MuJoCo's RK4, 5 steps of 0.01 s; ours: 20 RK4 steps of 0.01 s), so no trajectory is
+   MuJoCo's RK4, 5 steps of 0.01 s; ours: its default RK4 substeps, docs/envs.md), so no trajectory is
    compared: this is the cost of the environment interface at each one's own physics.
 2. One environment, microseconds per ``env.step(a)`` from a Python loop (reset when an episode
    ends): ``gym.make("multipendulum/Acrobot-v0")`` with the wrappers gym.make adds and its
    ``.unwrapped``; gymnasium's ``Acrobot-v1`` the same two ways; and the bare core:
-   ``Steppers(chain._c, 1, method="rk4", ..., dt=0.01)`` on ``Chain.rods([1, 1], [1, 1])``,
-   ``step(torques, zeros(0), 0.2)`` (20 RK4 steps), the same plus ``report()``, and
-   ``step(..., 0.01)`` (one RK4 step: the Python -> Rust -> Python call itself).
+   ``Steppers(chain._c, 1, method="rk4", ..., dt=h)`` on ``Chain.rods([1, 1], [1, 1])`` with
+   Acrobot-v0's default substep ``h``, ``step(torques, zeros(0), 0.2)`` (its substeps), the same
+   plus ``report()``, and ``step(..., h)`` (one RK4 step: the Python -> Rust -> Python call
+   itself).
 
 Everything is timed in alternation (bench_engine.measure: one warm-up call, batches, medians of
 the repeats with their ranges); nothing here asserts a speed: ratios and verdicts are reported.
@@ -53,8 +54,16 @@ OURS = ("multipendulum/Acrobot-v0", "multipendulum/CartPole-v0",
         "multipendulum/AcrobotCompat-v0")
 TARGET_ID = "multipendulum/Acrobot-v0"
 TARGET_A, TARGET_B = 100.0, 10.0  # ours / peer env-steps per second, at least
-CORE_DT, CORE_SPAN = 0.01, 0.2  # ours' default RK4 substep and env step
-CORE_KW = dict(method="rk4", rtol=1e-10, atol=1e-12, max_steps=10**8, dt=CORE_DT)
+CORE_SPAN = 0.2  # Acrobot-v0's env step
+CORE_KW = dict(method="rk4", rtol=1e-10, atol=1e-12, max_steps=10**8)
+
+
+def core_dt():
+    """Acrobot-v0's default RK4 substep, from its own rule (multipendulum.envs)."""
+    from multipendulum.envs._engine import stepping
+
+    dt, sub, _ = stepping(CORE_SPAN, None, "rk4", 2, upright=False)
+    return dt / sub
 THETA0, OMEGA0 = (0.1, -0.05), (0.0, 0.0)
 
 
@@ -82,7 +91,7 @@ def core_steppers(mp, count):
     from multipendulum import _core
 
     chain = mp.Chain.rods([1.0, 1.0], [1.0, 1.0])
-    st = _core.Steppers(chain._c, count, **CORE_KW)
+    st = _core.Steppers(chain._c, count, **CORE_KW, dt=core_dt())
     th0, om0 = np.array(THETA0, dtype=np.float64), np.array(OMEGA0, dtype=np.float64)
     for i in range(count):
         st.reset(i, th0, om0)
@@ -94,10 +103,10 @@ def core_step(st, count):
     require a fourth argument (the copies that move), the same call with ``None`` (all)."""
     u, empty = np.zeros(2 * count), np.zeros(0)
     try:
-        st.step(u, empty, CORE_DT)
+        st.step(u, empty, core_dt())
         return st.step, "step(torques, forces, span)"
     except TypeError:
-        st.step(u, empty, CORE_DT, None)
+        st.step(u, empty, core_dt(), None)
         return (lambda a, b, c: st.step(a, b, c, None)), "step(torques, forces, span, None)"
 
 
@@ -418,10 +427,10 @@ def bench_single(mp, gym, quick, repeats):
 
     for key, label, span, states in (
             ("core_span", f"core: Steppers(1).step(torques, zeros(0), {CORE_SPAN:g}) "
-                          f"({round(CORE_SPAN / CORE_DT)} RK4 steps)", CORE_SPAN, False),
+                          f"({round(CORE_SPAN / core_dt())} RK4 steps)", CORE_SPAN, False),
             ("core_span_states", f"core: the same + report()", CORE_SPAN, True),
-            ("core_one", f"core: Steppers(1).step(torques, zeros(0), {CORE_DT:g}) "
-                         "(1 RK4 step)", CORE_DT, False)):
+            ("core_one", f"core: Steppers(1).step(torques, zeros(0), {core_dt():.4g}) "
+                         "(1 RK4 step)", core_dt(), False)):
         rows.append({"key": key, "label": label, "steps": k, "span": span})
         fns[key] = core(span, states)
     fns["core_reset"] = lambda: st.reset(0, th0, om0)
@@ -437,7 +446,7 @@ def bench_single(mp, gym, quick, repeats):
         log(f"  {r['label']}: {r['s_per_step'][0] * 1e6:.3g} µs")
     derived = {}
     if "core_span" in t and "core_one" in t:
-        n_sub = round(CORE_SPAN / CORE_DT)
+        n_sub = round(CORE_SPAN / core_dt())
         big, one = by["core_span"]["s_per_step"][0], by["core_one"]["s_per_step"][0]
         per_rk4 = (big - one) / (n_sub - 1)
         derived = {"rk4_step_s": per_rk4, "call_overhead_s": one - per_rk4,
@@ -589,7 +598,8 @@ def markdown(rep):
                                                    if r.get("wrappers")), [])) or "its wrappers")
              + ". The core rows are the same physics as Acrobot-v0 without the environment: "
              "`Steppers(chain._c, 1, method=\"rk4\", rtol=1e-10, atol=1e-12, max_steps=10**8, "
-             "dt=0.01)` on `Chain.rods([1, 1], [1, 1])`, torques {-1, 0, 1} N m on joint 2, "
+             f"dt={core_dt():.4g})` on `Chain.rods([1, 1], [1, 1])` (Acrobot-v0's default substep), "
+             "torques {-1, 0, 1} N m on joint 2, "
              f"reset once per {one['steps']} calls.")
     L.append("")
     L.append("| call | per call | / core step(0.2) |")
@@ -625,7 +635,7 @@ def markdown(rep):
         if "s_per_step" in pa and "s_per_step" in u:
             L.append(f"Unwrapped, ours takes {u['s_per_step'][0] / pa['s_per_step'][0]:.2f}x "
                      f"the time of {PEER_A}'s step (which integrates one RK4 step of 0.2 s in "
-                     "NumPy, ours 20).")
+                     f"NumPy, ours {round(CORE_SPAN / core_dt())}).")
         L.append("")
     return finish(rep, L)
 
@@ -636,7 +646,7 @@ def why_missed(rep, tgt, core):
     need = TARGET_A * peer["env_steps_per_s"][0]  # env-steps/s
     cores = rep["machine"]["cores"] or 1
     t = tgt.get("task") or {}
-    sub = t.get("substeps", round(CORE_SPAN / CORE_DT))
+    sub = t.get("substeps", round(CORE_SPAN / core_dt()))
     per_rk4 = cores / need / sub  # s of one core per RK4 step, with nothing else to pay
     text = (f"Why the {TARGET_A:g}x target is missed: it needs {need:.3g} env-steps/s, "
             f"{E.fmt_time(1 / need)} of wall time per env step; spread over {cores} cores "

@@ -166,7 +166,7 @@ def test_cartpole_accelerations_equal_gymnasium_cartpole_equations_for_a_rod():
 # --- honest integration ----------------------------------------------------------------------
 
 @pytest.mark.parametrize("env_id,kwargs", [
-    (IDS[0], {}), (IDS[0], {"n": 3}), (IDS[0], {"n": 4}), (IDS[0], {"links": "points"}),
+    (IDS[0], {}), (IDS[0], {"n": 1}), (IDS[0], {"n": 3}), (IDS[0], {"n": 4}), (IDS[0], {"links": "points"}),
     (IDS[1], {}), (IDS[1], {"n": 2}), (IDS[1], {"n": 3}), (IDS[1], {"n": 4}), (IDS[1], {"task": "swingup", "n": 3}),
 ])
 def test_a_1000_step_undriven_episode_keeps_the_energy_balance_to_1e6(env_id, kwargs):
@@ -329,7 +329,7 @@ def test_unknown_make_keywords_are_input_errors_naming_them():
     with pytest.raises(mp.InputError, match="masses"):
         gym.make(IDS[0], masses=[1.0, -1.0])
     # Limits checked when the environment is made, not in the middle of a step or an allocation.
-    with pytest.raises(mp.InputError, match=r"dt = 1e\+09 s would take 1e\+11 integrator steps, more than 1e\+06"):
+    with pytest.raises(mp.InputError, match=r"dt = 1e\+09 s would take 7e\+10 integrator steps, more than 1e\+06"):
         gym.make(IDS[0], dt=1e9)
     with pytest.raises(mp.InputError, match="integrator steps, more than"):
         gym.make(IDS[0], substeps=10**7)

@@ -16,13 +16,14 @@ from .._convert import as_float, as_floats
 from .._simulate import DEFAULTS, METHOD_INFO
 from ..errors import InputError
 
-#: The largest integrator step of an environment unless ``substeps`` is given: each env step
-#: of ``dt`` takes ``ceil(dt / h)`` steps of the method, ``h = MAX_STEP * min(1, (k / N)**2.5)``
-#: for N links, ``k = 3`` for a start hanging down and ``k = 1`` for a start upright (a chain
-#: that falls from the top moves fastest). With rk4 this keeps the relative energy-balance
-#: residual of a 1000-step undriven episode from the default start below 1e-6 (measured in
-#: tests/test_envs.py for every environment, N = 1 to 4).
-MAX_STEP = 0.01
+#: The largest integrator step of an environment unless ``substeps`` is given (1/70 s): each env
+#: step of ``dt`` takes ``ceil(dt / h)`` steps of the method, ``h = min(MAX_STEP, 0.01 (k /
+#: N)**2.5)`` for N links, ``k = 3`` for a start hanging down and ``k = 1`` for a start upright (a
+#: chain that falls from the top moves fastest); chains of fewer than ``k`` links take
+#: ``MAX_STEP``. With rk4 this keeps the relative energy-balance residual of a 1000-step undriven
+#: episode from the default start below 1e-6 (measured in tests/test_envs.py for every
+#: environment, N = 1 to 4; the closest, 4e-7, is the three-link acrobot's).
+MAX_STEP = 1 / 70
 
 #: The most integrator steps one env step may take: beyond it a single call into the core would
 #: run for minutes without a way to stop it (an env step of ``dt`` far beyond the chain's time
@@ -87,7 +88,7 @@ def build_chain(n: int, lengths: object, masses: object, links: str, g: Optional
 
 def default_step(n: int, upright: bool) -> float:
     """The integrator's step unless ``substeps`` is given (see :data:`MAX_STEP`)."""
-    return MAX_STEP * min(1.0, ((1 if upright else 3) / n) ** 2.5)
+    return min(MAX_STEP, 0.01 * ((1 if upright else 3) / n) ** 2.5)
 
 
 def stepping(dt: object, substeps: object, method: object, n: int, upright: bool) -> Tuple[float, int, str]:

@@ -208,9 +208,9 @@ class PendulumVectorEnv(VectorEnv[Any, Any, Any]):
 
     def _infos(self, balance: Array, mask: npt.NDArray[np.bool_]) -> Info:
         info: Info = {}
-        every = bool(mask.all())
+        columns = balance.T.copy() if mask.all() else np.where(mask, balance.T, 0.0)
         for k, key in enumerate(("t", "energy", "energy_error")):
-            info[key] = balance[:, k].copy() if every else np.where(mask, balance[:, k], 0.0)
+            info[key] = columns[k]
             info["_" + key] = mask.copy()
         return info
 
@@ -219,22 +219,28 @@ class PendulumVectorEnv(VectorEnv[Any, Any, Any]):
             raise gym.error.ResetNeeded("call reset() before step()")
         torques, forces = self.task.inputs(actions, (self.num_envs,))
         mode = self.autoreset_mode
-        restart = self._done.copy() if mode == AutoresetMode.NEXT_STEP else np.zeros(self.num_envs, dtype=np.bool_)
-        if mode == AutoresetMode.DISABLED and self._done.any():
+        ended = bool(self._done.any())
+        if mode == AutoresetMode.DISABLED and ended:
             raise InputError("autoreset_mode='Disabled': reset the environments that ended "
                              f"(indices {np.flatnonzero(self._done).tolist()}) with reset(options={{'reset_mask': ...}})")
-        if restart.any():
+        # The environments that ended last step start anew instead of stepping (NEXT_STEP).
+        restart = self._done.copy() if mode == AutoresetMode.NEXT_STEP and ended else None
+        if restart is not None:
             for i in np.flatnonzero(restart):
                 self._start(int(i), None)
-        self._engine.step(torques, forces, ~restart)
-        self._steps[~restart] += 1
+            self._engine.step(torques, forces, ~restart)
+            self._steps[~restart] += 1
+        else:
+            self._engine.step(torques, forces)
+            self._steps += 1
         self._states = self._engine.states()
         balance = self._engine.balance()
         obs = self._engine.observe(self.task.columns)
         reward, terminated = self.task.outcome(self._states, obs)
         truncated = (self._steps >= self.max_episode_steps) if self.max_episode_steps is not None \
             else np.zeros(self.num_envs, dtype=np.bool_)
-        reward[restart], terminated[restart], truncated[restart] = 0.0, False, False
+        if restart is not None:
+            reward[restart], terminated[restart], truncated[restart] = 0.0, False, False
         everyone = np.ones(self.num_envs, dtype=np.bool_)
         info = self._infos(balance, everyone)
         done = terminated | truncated
