@@ -16,7 +16,7 @@ use crate::error::{check_finite, Error, Result};
 use crate::integrators::Method;
 use crate::model::Chain;
 use crate::par::*;
-use crate::trig::lanes::{each, sin_cos, Path, LANES};
+use crate::trig::lanes::{each, sin_cos, Lane, Path, LANES};
 
 /// One column of an observation ([`Steppers::observe_into`]): entry `i` of a state row, or its
 /// cosine or sine.
@@ -38,14 +38,17 @@ impl Column {
 #[inline(always)]
 fn observe(states: &[f64], k: usize, columns: &[Column], out: &mut [f64]) {
     let width = columns.len();
+    // Each entry's sin and cos once per chunk, for a cosine and a sine of the same angle.
+    let mut trig: Vec<Option<(Lane, Lane)>> = vec![None; k];
     for (rows, obs) in states.chunks(LANES * k).zip(out.chunks_mut(LANES * width)) {
         let copies = rows.len() / k;
+        trig.iter_mut().for_each(|t| *t = None);
         for (j, &col) in columns.iter().enumerate() {
             let lane = each(|c| if c < copies { rows[c * k + col.index()] } else { 0.0 });
             let value = match col {
                 Column::Value(_) => lane,
-                Column::Cos(_) => sin_cos(&lane).1,
-                Column::Sin(_) => sin_cos(&lane).0,
+                Column::Cos(i) => trig[i].get_or_insert_with(|| sin_cos(&lane)).1,
+                Column::Sin(i) => trig[i].get_or_insert_with(|| sin_cos(&lane)).0,
             };
             for c in 0..copies {
                 obs[c * width + j] = value[c];
