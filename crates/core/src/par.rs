@@ -7,6 +7,18 @@ pub(crate) use rayon::prelude::*;
 #[cfg(not(feature = "parallel"))]
 pub(crate) use sequential::*;
 
+/// The number of threads parallel work runs on (1 without the `parallel` feature).
+pub(crate) fn threads() -> usize {
+    #[cfg(feature = "parallel")]
+    {
+        rayon::current_num_threads()
+    }
+    #[cfg(not(feature = "parallel"))]
+    {
+        1
+    }
+}
+
 /// `f` of every item, the calling thread taking part: it starts on the items at once while the
 /// pool's threads wake and join in (a short call, such as a vector environment's step between
 /// a policy's evaluations, would otherwise wait for a sleeping pool to wake and then for its own

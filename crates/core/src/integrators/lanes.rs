@@ -179,7 +179,7 @@ impl Rk4Lanes {
         tau: &[Lane],
         dt: f64,
         active: &Lane,
-    ) -> std::result::Result<[bool; LANES], (usize, LaneSingular)> {
+    ) -> Stepped {
         self.step_cart(chain, y, tau, &[0.0; LANES], dt, active)
     }
 
@@ -195,7 +195,7 @@ impl Rk4Lanes {
         force: &Lane,
         dt: f64,
         active: &Lane,
-    ) -> std::result::Result<[bool; LANES], (usize, LaneSingular)> {
+    ) -> Stepped {
         let mut q = std::mem::take(&mut self.q);
         // The chain's equations do not depend on time: the steps' times are immaterial.
         let out = self.step_system(y, 0.0, dt, active, &mut ChainLanes { chain, tau, drive: None, force, pivot: None, pivot_work: false, q: &mut q });
@@ -212,7 +212,7 @@ impl Rk4Lanes {
         dt: f64,
         active: &Lane,
         sys: &mut impl LaneSystem,
-    ) -> std::result::Result<[bool; LANES], (usize, LaneSingular)> {
+    ) -> Stepped {
         self.step_system_at(y, &[t; LANES], dt, active, sys)
     }
 
@@ -225,13 +225,13 @@ impl Rk4Lanes {
         dt: f64,
         active: &Lane,
         sys: &mut impl LaneSystem,
-    ) -> std::result::Result<[bool; LANES], (usize, LaneSingular)> {
+    ) -> Stepped {
         // A system of four lanes (the double pendulum, a pendulum on a cart) keeps its state,
         // stages and sums in fixed-size arrays, which LLVM holds in registers across the step
         // where it cannot do so for the heap buffers: the same operations, so the same bits.
         match y.len() {
-            4 => return fixed::<4>(y, t, dt, active, sys, &mut self.scratch),
-            6 => return fixed::<6>(y, t, dt, active, sys, &mut self.scratch),
+            4 => return fixed::<4, 1, _>([y], [t], dt, [active], [sys], [&mut self.scratch])[0],
+            6 => return fixed::<6, 1, _>([y], [t], dt, [active], [sys], [&mut self.scratch])[0],
             _ => {}
         }
         let half = 0.5 * dt;
@@ -281,56 +281,114 @@ impl Rk4Lanes {
     }
 }
 
-/// [`Rk4Lanes::step_system_at`] of a system of `M` lanes, its buffers fixed-size arrays on the
-/// stack: operation for operation the same step.
+/// What one rk4 step of a group of lanes gives: the active lanes whose new state is not finite,
+/// or the stage at which an active lane's pivot failed (then no lane moved).
+pub type Stepped = std::result::Result<[bool; LANES], (usize, LaneSingular)>;
+
+/// [`Rk4Lanes::step_cart`] of two groups of lanes of the same chain side by side: each stage
+/// computes the one group's rates and then the other's, whose independent arithmetic fills the
+/// wait on the first's divisions and `sin`/`cos` (the double pendulum's flip kernel does the
+/// same with its two groups). Each group's lanes take the same operations as alone: the same
+/// bits. Systems of more than six lanes step one group after the other.
 #[inline(always)]
-fn fixed<const M: usize>(
-    y: &mut [Lane],
-    t: &Lane,
+#[allow(clippy::too_many_arguments)]
+pub fn step_cart_pair(
+    rk: [&mut Rk4Lanes; 2],
+    chain: &Chain,
+    y: [&mut [Lane]; 2],
+    tau: [&[Lane]; 2],
+    force: [&Lane; 2],
     dt: f64,
-    active: &Lane,
-    sys: &mut impl LaneSystem,
-    scratch: &mut LaneScratch,
-) -> std::result::Result<[bool; LANES], (usize, LaneSingular)> {
+    active: [&Lane; 2],
+) -> [Stepped; 2] {
+    let [a, b] = rk;
+    let (mut qa, mut qb) = (std::mem::take(&mut a.q), std::mem::take(&mut b.q));
+    let sys = |tau, force, q| ChainLanes { chain, tau, drive: None, force, pivot: None, pivot_work: false, q };
+    let (mut sa, mut sb) = (sys(tau[0], force[0], &mut qa), sys(tau[1], force[1], &mut qb));
+    let [ya, yb] = y;
+    let t = &[0.0; LANES];
+    let out = match ya.len() {
+        4 => fixed::<4, 2, _>([ya, yb], [t, t], dt, active, [&mut sa, &mut sb], [&mut a.scratch, &mut b.scratch]),
+        6 => fixed::<6, 2, _>([ya, yb], [t, t], dt, active, [&mut sa, &mut sb], [&mut a.scratch, &mut b.scratch]),
+        _ => [a.step_system_at(ya, t, dt, active[0], &mut sa), b.step_system_at(yb, t, dt, active[1], &mut sb)],
+    };
+    (a.q, b.q) = (qa, qb);
+    out
+}
+
+/// [`Rk4Lanes::step_system_at`] of `P` groups of a system of `M` lanes, side by side, their
+/// buffers fixed-size arrays on the stack (which LLVM holds in registers where it cannot do so
+/// for the heap buffers): for each group, operation for operation the same step as alone. A
+/// group whose rates fail at a stage stops there (its state unchanged); the others go on.
+#[inline(always)]
+fn fixed<const M: usize, const P: usize, S: LaneSystem>(
+    y: [&mut [Lane]; P],
+    t: [&Lane; P],
+    dt: f64,
+    active: [&Lane; P],
+    sys: [&mut S; P],
+    scratch: [&mut LaneScratch; P],
+) -> [Stepped; P] {
     let half = 0.5 * dt;
-    let y0: [Lane; M] = std::array::from_fn(|m| y[m]);
-    let mut k = [[[0.0; LANES]; M]; 4];
+    let y0: [[Lane; M]; P] = std::array::from_fn(|p| std::array::from_fn(|m| y[p][m]));
+    let mut k = [[[[0.0; LANES]; M]; 4]; P];
     let mut tmp = y0;
+    let mut failed: [Option<(usize, LaneSingular)>; P] = [None; P];
     for stage in 0..4 {
-        let at = each(|i| match stage {
-            0 => t[i],
-            3 => t[i] + dt,
-            _ => t[i] + half,
-        });
-        sys.rates(&at, &tmp, &mut k[stage], scratch, active).map_err(|s| (stage, s.seen_in(&tmp)))?;
+        for p in 0..P {
+            if failed[p].is_some() {
+                continue;
+            }
+            let at = each(|i| match stage {
+                0 => t[p][i],
+                3 => t[p][i] + dt,
+                _ => t[p][i] + half,
+            });
+            if let Err(s) = sys[p].rates(&at, &tmp[p], &mut k[p][stage], scratch[p], active[p]) {
+                failed[p] = Some((stage, s.seen_in(&tmp[p])));
+            }
+        }
         if stage < 3 {
             let h = if stage < 2 { half } else { dt };
-            for m in 0..M {
-                for i in 0..LANES {
-                    tmp[m][i] = h.mul_add(k[stage][m][i], y0[m][i]);
+            for p in 0..P {
+                for m in 0..M {
+                    for i in 0..LANES {
+                        tmp[p][m][i] = h.mul_add(k[p][stage][m][i], y0[p][m][i]);
+                    }
                 }
             }
         }
     }
     let sixth = dt / 6.0;
-    let mut poison = [0.0; LANES];
-    let [k1, k2, k3, k4] = &k;
-    for m in 0..M {
-        for i in 0..LANES {
-            tmp[m][i] = sixth.mul_add(2.0f64.mul_add(k2[m][i] + k3[m][i], k1[m][i]) + k4[m][i], y0[m][i]);
-            poison[i] += tmp[m][i] * 0.0;
+    // Loops, not `array::from_fn`: a closure's body would compile outside the callers' target
+    // features, each `mul_add` a call to `fma()`.
+    let mut out: [Stepped; P] = [Ok([false; LANES]); P];
+    for p in 0..P {
+        if let Some(f) = failed[p] {
+            out[p] = Err(f);
+            continue;
         }
-    }
-    let (mut keep, mut nonfinite) = ([false; LANES], [false; LANES]);
-    for i in 0..LANES {
-        let finite = poison[i] == 0.0;
-        keep[i] = active[i] > 0.0 && finite;
-        nonfinite[i] = active[i] > 0.0 && !finite;
-    }
-    for (yv, t) in y.iter_mut().zip(tmp.iter()) {
-        for i in 0..LANES {
-            yv[i] = if keep[i] { t[i] } else { yv[i] };
+        let mut poison = [0.0; LANES];
+        let [k1, k2, k3, k4] = &k[p];
+        let tmp = &mut tmp[p];
+        for m in 0..M {
+            for i in 0..LANES {
+                tmp[m][i] = sixth.mul_add(2.0f64.mul_add(k2[m][i] + k3[m][i], k1[m][i]) + k4[m][i], y0[p][m][i]);
+                poison[i] += tmp[m][i] * 0.0;
+            }
         }
+        let (mut keep, mut nonfinite) = ([false; LANES], [false; LANES]);
+        for i in 0..LANES {
+            let finite = poison[i] == 0.0;
+            keep[i] = active[p][i] > 0.0 && finite;
+            nonfinite[i] = active[p][i] > 0.0 && !finite;
+        }
+        for (yv, t) in y[p].iter_mut().zip(tmp.iter()) {
+            for i in 0..LANES {
+                yv[i] = if keep[i] { t[i] } else { yv[i] };
+            }
+        }
+        out[p] = Ok(nonfinite);
     }
-    Ok(nonfinite)
+    out
 }

@@ -13,7 +13,7 @@ use super::simulate::Settings;
 use crate::dynamics::lanes::energies_on;
 use crate::dynamics::system::NON_FINITE;
 use crate::error::{Error, Result};
-use crate::integrators::lanes::{failed_at, Rk4Lanes};
+use crate::integrators::lanes::{failed_at, step_cart_pair, Rk4Lanes, Stepped};
 use crate::model::Chain;
 use crate::par::each_shared;
 use crate::trig::lanes::{Lane, Path, LANES};
@@ -167,42 +167,37 @@ impl Bank {
     ) -> Result<()> {
         let (chain, dt, path) = (&self.chain, self.dt, self.path);
         let (n, (row, _)) = (chain.n(), layout(chain));
-        let one = |(gi, ((((g, copies), u), states), balance)): (
-            usize,
-            (
-                (((&mut Group, &mut [Copy]), &[f64]), &mut [f64]),
-                &mut [f64],
-            ),
-        )| {
-            let base = gi * LANES;
-            let on = |j: usize| active.get(base + j).copied().unwrap_or(true);
-            for j in 0..copies.len() {
-                g.force[j] = forces.get(base + j).copied().unwrap_or(0.0);
+        let mut shares: Vec<Share> = self
+            .groups
+            .iter_mut()
+            .zip(self.copies.chunks_mut(LANES))
+            .zip(u.chunks(LANES * n))
+            .zip(states.chunks_mut(LANES * row))
+            .zip(balance.chunks_mut(LANES * 3))
+            .enumerate()
+            .map(|(gi, ((((g, copies), u), states), balance))| {
+                let base = gi * LANES;
+                for j in 0..copies.len() {
+                    g.force[j] = forces.get(base + j).copied().unwrap_or(0.0);
+                }
+                Share { g, copies, u, states, balance, base }
+            })
+            .collect();
+        let run = |shares: &mut [Share]| {
+            let failed = run_groups(path, chain, dt, shares, span, active);
+            for s in shares.iter_mut() {
+                report_on(path, chain, dt, s.g, s.copies, s.states, s.balance);
             }
-            let e = run_group(path, chain, dt, g, copies, u, span, &on);
-            report_on(path, chain, dt, g, copies, states, balance);
-            e.map(|(j, e)| (base + j, e))
+            failed
         };
-        // One group runs here: the pool's hand-over would cost more than its steps.
-        let failed: Option<(usize, Error)> = if self.groups.len() == 1 {
-            one((
-                0,
-                (
-                    (((&mut self.groups[0], &mut self.copies[..]), u), states),
-                    balance,
-                ),
-            ))
+        // Groups go two at a time side by side ([`step_cart_pair`]) when every thread still
+        // gets a pair; one group runs here: the pool's hand-over would cost more than its steps.
+        let width = if shares.len() >= 2 * crate::par::threads() { 2 } else { 1 };
+        let failed: Option<(usize, Error)> = if shares.len() <= width {
+            run(&mut shares)
         } else {
-            let groups = self
-                .groups
-                .iter_mut()
-                .zip(self.copies.chunks_mut(LANES))
-                .zip(u.chunks(LANES * n))
-                .zip(states.chunks_mut(LANES * row))
-                .zip(balance.chunks_mut(LANES * 3))
-                .enumerate()
-                .collect();
-            each_shared(groups, one).into_iter().flatten().min_by_key(|(i, _)| *i)
+            let items: Vec<&mut [Share]> = shares.chunks_mut(width).collect();
+            each_shared(items, run).into_iter().flatten().min_by_key(|(i, _)| *i)
         };
         match failed {
             None => Ok(()),
@@ -289,162 +284,179 @@ fn report(
     }
 }
 
-/// The group's steps on the chosen path; the first failed copy of the group (its lane).
-#[allow(clippy::too_many_arguments)]
-fn run_group(
-    path: Path,
-    chain: &Chain,
-    dt: f64,
-    g: &mut Group,
-    copies: &mut [Copy],
-    u: &[f64],
-    span: f64,
-    on: &dyn Fn(usize) -> bool,
-) -> Option<(usize, Error)> {
+/// One group's share of a call: its lanes and copies, their inputs (`u`: the joints' torques,
+/// N per copy) and outputs, and the index of its first copy.
+struct Share<'a> {
+    g: &'a mut Group,
+    copies: &'a mut [Copy],
+    u: &'a [f64],
+    states: &'a mut [f64],
+    balance: &'a mut [f64],
+    base: usize,
+}
+
+/// The steps of one group or of two side by side, on the chosen path; the first failed copy
+/// (by index) of any of them.
+fn run_groups(path: Path, chain: &Chain, dt: f64, shares: &mut [Share], span: f64, active: &[bool]) -> Option<(usize, Error)> {
     match path {
         // SAFETY: the path was checked available when chosen.
         #[cfg(target_arch = "x86_64")]
-        Path::Avx512 => unsafe { run_group_avx512(chain, dt, g, copies, u, span, on) },
+        Path::Avx512 => unsafe { run_groups_avx512(chain, dt, shares, span, active) },
         #[cfg(target_arch = "x86_64")]
-        Path::Avx2 => unsafe { run_group_avx2(chain, dt, g, copies, u, span, on) },
-        _ => run_group_body(chain, dt, g, copies, u, span, on),
+        Path::Avx2 => unsafe { run_groups_avx2(chain, dt, shares, span, active) },
+        _ => run_groups_body(chain, dt, shares, span, active),
     }
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,fma")]
-unsafe fn run_group_avx512(
-    chain: &Chain,
-    dt: f64,
-    g: &mut Group,
-    copies: &mut [Copy],
-    u: &[f64],
-    span: f64,
-    on: &dyn Fn(usize) -> bool,
-) -> Option<(usize, Error)> {
-    run_group_body(chain, dt, g, copies, u, span, on)
+unsafe fn run_groups_avx512(chain: &Chain, dt: f64, shares: &mut [Share], span: f64, active: &[bool]) -> Option<(usize, Error)> {
+    run_groups_body(chain, dt, shares, span, active)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-unsafe fn run_group_avx2(
-    chain: &Chain,
-    dt: f64,
-    g: &mut Group,
-    copies: &mut [Copy],
-    u: &[f64],
-    span: f64,
-    on: &dyn Fn(usize) -> bool,
-) -> Option<(usize, Error)> {
-    run_group_body(chain, dt, g, copies, u, span, on)
+unsafe fn run_groups_avx2(chain: &Chain, dt: f64, shares: &mut [Share], span: f64, active: &[bool]) -> Option<(usize, Error)> {
+    run_groups_body(chain, dt, shares, span, active)
 }
 
 #[inline(always)]
-fn run_group_body(
-    chain: &Chain,
-    dt: f64,
-    g: &mut Group,
-    copies: &mut [Copy],
-    u: &[f64],
-    span: f64,
-    on: &dyn Fn(usize) -> bool,
-) -> Option<(usize, Error)> {
+fn run_groups_body(chain: &Chain, dt: f64, shares: &mut [Share], span: f64, active: &[bool]) -> Option<(usize, Error)> {
+    // Loops, not closures: a closure's body would compile outside the target features.
+    if let [a, b] = shares {
+        let [fa, fb] = run_body::<2>([a, b], chain, dt, span, active);
+        return fa.or(fb);
+    }
+    let mut first = None;
+    for s in shares.iter_mut() {
+        let [f] = run_body::<1>([s], chain, dt, span, active);
+        first = first.or(f);
+    }
+    first
+}
+
+/// The steps of `P` groups; each one's first failed copy (its index).
+#[inline(always)]
+fn run_body<const P: usize>(shares: [&mut Share; P], chain: &Chain, dt: f64, span: f64, active: &[bool]) -> [Option<(usize, Error)>; P] {
     let n = chain.n();
-    // Each copy's number of grid steps this call, and its generalized torques (joint motors).
-    let mut todo = [0u64; LANES];
-    for (j, c) in copies.iter().enumerate() {
-        if !on(j) || c.failed.is_some() {
-            continue;
-        }
-        let target = c.steps as f64 * dt + span;
-        let mut k = c.steps;
-        while ((k + 1) as f64 * dt) <= target + 1e-9 * dt {
-            k += 1;
-        }
-        todo[j] = k - c.steps;
-        for a in 0..n {
-            let next = if a + 1 < n { u[n * j + a + 1] } else { 0.0 };
-            g.tau[a][j] = u[n * j + a] - next;
-        }
-    }
     let cart = chain.cart().is_some();
-    for a in 0..n {
-        g.start[a] = g.y[a];
-    }
-    if cart {
-        g.start[n] = g.y[2 * n];
-    }
-    let rounds = todo.iter().copied().max().unwrap_or(0);
-    let mut first_failure: Option<(usize, Error)> = None;
-    let mut fail =
-        |j: usize, t: f64, reason: String, todo: &mut [u64; LANES], r: u64, copies: &mut [Copy]| {
-            let e = Error::integration(t, reason);
-            copies[j].failed = Some(e.clone());
-            todo[j] = r;
-            if first_failure.as_ref().map_or(true, |(k, _)| j < *k) {
-                first_failure = Some((j, e));
+    let mut todo = [[0u64; LANES]; P];
+    let mut first_failure: [Option<(usize, Error)>; P] = std::array::from_fn(|_| None);
+    let mut shares = shares;
+    for (p, s) in shares.iter_mut().enumerate() {
+        let on = |j: usize| active.get(s.base + j).copied().unwrap_or(true);
+        let (g, u) = (&mut *s.g, s.u);
+        // Each copy's number of grid steps this call, and its generalized torques (joint motors).
+        for (j, c) in s.copies.iter().enumerate() {
+            if !on(j) || c.failed.is_some() {
+                continue;
             }
-        };
+            let target = c.steps as f64 * dt + span;
+            let mut k = c.steps;
+            while ((k + 1) as f64 * dt) <= target + 1e-9 * dt {
+                k += 1;
+            }
+            todo[p][j] = k - c.steps;
+            for a in 0..n {
+                let next = if a + 1 < n { u[n * j + a + 1] } else { 0.0 };
+                g.tau[a][j] = u[n * j + a] - next;
+            }
+        }
+        for a in 0..n {
+            g.start[a] = g.y[a];
+        }
+        if cart {
+            g.start[n] = g.y[2 * n];
+        }
+    }
+    let rounds = todo.iter().flatten().copied().max().unwrap_or(0);
+    let fail = |j: usize, t: f64, reason: String, first: &mut Option<(usize, Error)>, copies: &mut [Copy]| {
+        let e = Error::integration(t, reason);
+        copies[j].failed = Some(e.clone());
+        if first.as_ref().map_or(true, |(k, _)| j < *k) {
+            *first = Some((j, e));
+        }
+    };
     for r in 0..rounds {
         // A lane whose mass matrix fails stops at its last good state; the step is then taken
-        // again by the others.
+        // again by the others (a group that has taken it sits out, all its lanes inactive).
+        let mut pending = [true; P];
         loop {
-            let mut active = [0.0; LANES];
-            for j in 0..copies.len() {
-                active[j] = if r < todo[j] { 1.0 } else { 0.0 };
+            let mut on = [[0.0; LANES]; P];
+            for p in 0..P {
+                for j in 0..shares[p].copies.len() {
+                    on[p][j] = if pending[p] && r < todo[p][j] { 1.0 } else { 0.0 };
+                }
+                pending[p] &= on[p].iter().any(|&a| a > 0.0);
             }
-            if active.iter().all(|&a| a == 0.0) {
+            if !pending.iter().any(|&p| p) {
                 break;
             }
-            let stepped = if cart {
-                g.rk.step_cart(chain, &mut g.y, &g.tau, &g.force, dt, &active)
-            } else {
-                g.rk.step(chain, &mut g.y, &g.tau, dt, &active)
-            };
-            match stepped {
-                Ok(nonfinite) => {
-                    for j in 0..copies.len() {
-                        if nonfinite[j] {
-                            fail(
-                                j,
-                                (copies[j].steps + r + 1) as f64 * dt,
-                                NON_FINITE.to_string(),
-                                &mut todo,
-                                r,
-                                copies,
-                            );
+            // Loops, not `array::from_fn`: a closure's body would compile outside the callers'
+            // target features, each `mul_add` a call to `fma()`.
+            let mut stepped: [Stepped; P] = [Ok([false; LANES]); P];
+            match &mut shares[..] {
+                [a, b] => {
+                    let (a, b) = (&mut *a.g, &mut *b.g);
+                    let two = step_cart_pair([&mut a.rk, &mut b.rk], chain, [&mut a.y, &mut b.y], [&a.tau, &b.tau], [&a.force, &b.force], dt, [&on[0], &on[1]]);
+                    stepped[..2].copy_from_slice(&two);
+                }
+                _ => {
+                    for p in 0..P {
+                        let g = &mut *shares[p].g;
+                        if pending[p] {
+                            stepped[p] = g.rk.step_cart(chain, &mut g.y, &g.tau, &g.force, dt, &on[p]);
                         }
                     }
-                    break;
                 }
-                Err((stage, bad)) => {
-                    for j in 0..copies.len() {
-                        if bad.lanes[j] {
-                            let t = failed_at(&bad, j, stage, (copies[j].steps + r) as f64 * dt, dt);
-                            fail(j, t, bad.reason(j), &mut todo, r, copies);
+            }
+            for (p, stepped) in stepped.into_iter().enumerate() {
+                if !pending[p] {
+                    continue;
+                }
+                let copies = &mut *shares[p].copies;
+                match stepped {
+                    Ok(nonfinite) => {
+                        for j in 0..copies.len() {
+                            if nonfinite[j] {
+                                fail(j, (copies[j].steps + r + 1) as f64 * dt, NON_FINITE.to_string(), &mut first_failure[p], copies);
+                                todo[p][j] = r;
+                            }
+                        }
+                        pending[p] = false;
+                    }
+                    Err((stage, bad)) => {
+                        for j in 0..copies.len() {
+                            if bad.lanes[j] {
+                                let t = failed_at(&bad, j, stage, (copies[j].steps + r) as f64 * dt, dt);
+                                fail(j, t, bad.reason(j), &mut first_failure[p], copies);
+                                todo[p][j] = r;
+                            }
                         }
                     }
                 }
             }
         }
     }
-    for (j, c) in copies.iter_mut().enumerate() {
-        if todo[j] == 0 {
-            if let Some(e) = &c.failed {
-                if on(j) {
-                    first_failure.get_or_insert((j, e.clone()));
+    for (p, s) in shares.iter_mut().enumerate() {
+        let on = |j: usize| active.get(s.base + j).copied().unwrap_or(true);
+        let g = &mut *s.g;
+        for (j, c) in s.copies.iter_mut().enumerate() {
+            if todo[p][j] == 0 {
+                if let Some(e) = &c.failed {
+                    if on(j) {
+                        first_failure[p].get_or_insert((j, e.clone()));
+                    }
                 }
+                continue;
             }
-            continue;
-        }
-        c.steps += todo[j];
-        c.work += (0..n)
-            .map(|a| g.tau[a][j] * (g.y[a][j] - g.start[a][j]))
-            .sum::<f64>();
-        if cart {
-            // The held force's work, F (x_end - x_start): what rk4 gives its integral.
-            c.work += g.force[j] * (g.y[2 * n][j] - g.start[n][j]);
+            c.steps += todo[p][j];
+            c.work += (0..n).map(|a| g.tau[a][j] * (g.y[a][j] - g.start[a][j])).sum::<f64>();
+            if cart {
+                // The held force's work, F (x_end - x_start): what rk4 gives its integral.
+                c.work += g.force[j] * (g.y[2 * n][j] - g.start[n][j]);
+            }
         }
     }
-    first_failure
+    std::array::from_fn(|p| first_failure[p].take().map(|(j, e)| (shares[p].base + j, e)))
 }
