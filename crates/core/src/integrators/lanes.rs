@@ -128,7 +128,13 @@ fn pivot_power_of(chain: &Chain, (ax, ay): (&Lane, &Lane), omega: &[Lane], (sin,
             ry[i] += hw * sin[i];
         }
     }
-    each(|i| -ax[i].mul_add(rx[i], ay[i] * ry[i]))
+    // A loop, not `each`'s closure, which LLVM outlined here: on the baseline target, its
+    // `mul_add` a call to `fma()`.
+    let mut p = [0.0; LANES];
+    for i in 0..LANES {
+        p[i] = -ax[i].mul_add(rx[i], ay[i] * ry[i]);
+    }
+    p
 }
 
 /// When rk4's `stage` of lane `i` failed in the step of size `h` from `t`, as the scalar route

@@ -259,14 +259,13 @@ fn run_group(g: &Group, watch: &Watch) -> Result<Vec<Trajectory>> {
                     let j = (0..LANES).find(|&j| s.lanes[j]).unwrap_or(0);
                     error(j, t, &s.reason(j))
                 };
-                let mut slope = |t: f64, y: &[Lane], dy: &mut [Lane]| {
-                    equations(g, &zero, &mut q).rates(&[t; LANES], y, dy, &mut scratch, &active).map_err(|s| failed(t)(s.seen_in(y)))
-                };
+                // The slopes in place, not through a closure: its body would compile outside the
+                // path's target features, each `mul_add` a call to `fma()`.
                 if !start_known {
-                    slope(t, &y0, &mut f0)?;
+                    equations(g, &zero, &mut q).rates(&[t; LANES], &y0, &mut f0, &mut scratch, &active).map_err(|s| failed(t)(s.seen_in(&y0)))?;
                     evaluations += 1;
                 }
-                slope(t1, &y, &mut f1)?;
+                equations(g, &zero, &mut q).rates(&[t1; LANES], &y, &mut f1, &mut scratch, &active).map_err(|s| failed(t1)(s.seen_in(&y)))?;
                 evaluations += 1;
                 end_known = true;
                 while next < te.len() && te[next] < edge {
