@@ -335,16 +335,20 @@ fn run_groups_body(chain: &Chain, dt: f64, shares: &mut [Share], span: f64, acti
     first
 }
 
+/// Whether copy `i` takes this call's steps (`active` empty: every copy).
+fn wanted(active: &[bool], i: usize) -> bool {
+    active.get(i).copied().unwrap_or(true)
+}
+
 /// The steps of `P` groups; each one's first failed copy (its index).
 #[inline(always)]
-fn run_body<const P: usize>(shares: [&mut Share; P], chain: &Chain, dt: f64, span: f64, active: &[bool]) -> [Option<(usize, Error)>; P] {
+fn run_body<const P: usize>(mut shares: [&mut Share; P], chain: &Chain, dt: f64, span: f64, active: &[bool]) -> [Option<(usize, Error)>; P] {
     let n = chain.n();
     let cart = chain.cart().is_some();
     let mut todo = [[0u64; LANES]; P];
     let mut first_failure: [Option<(usize, Error)>; P] = std::array::from_fn(|_| None);
-    let mut shares = shares;
     for (p, s) in shares.iter_mut().enumerate() {
-        let on = |j: usize| active.get(s.base + j).copied().unwrap_or(true);
+        let on = |j: usize| wanted(active, s.base + j);
         let (g, u) = (&mut *s.g, s.u);
         // Each copy's number of grid steps this call, and its generalized torques (joint motors).
         for (j, c) in s.copies.iter().enumerate() {
@@ -439,7 +443,7 @@ fn run_body<const P: usize>(shares: [&mut Share; P], chain: &Chain, dt: f64, spa
         }
     }
     for (p, s) in shares.iter_mut().enumerate() {
-        let on = |j: usize| active.get(s.base + j).copied().unwrap_or(true);
+        let on = |j: usize| wanted(active, s.base + j);
         let g = &mut *s.g;
         for (j, c) in s.copies.iter_mut().enumerate() {
             if todo[p][j] == 0 {
