@@ -39,8 +39,10 @@ pub(crate) fn each_shared<T: Send, R: Send>(items: Vec<T>, f: impl Fn(T) -> R + 
             results.lock().unwrap_or_else(|e| e.into_inner())[i] = Some(r);
             done.fetch_add(1, Ordering::Release);
         };
+        let helpers = rayon::current_num_threads().min(count).saturating_sub(1);
+        let epoch = linger::begin();
         rayon::in_place_scope(|s| {
-            for _ in 1..rayon::current_num_threads().min(count) {
+            for _ in 0..helpers {
                 s.spawn(|_| drain());
             }
             drain();
@@ -50,11 +52,53 @@ pub(crate) fn each_shared<T: Send, R: Send>(items: Vec<T>, f: impl Fn(T) -> R + 
                 std::hint::spin_loop();
             }
         });
+        linger::after(epoch, helpers);
         results.into_inner().unwrap_or_else(|e| e.into_inner()).into_iter().map(|r| r.expect("every item is taken once")).collect()
     }
     #[cfg(not(feature = "parallel"))]
     {
         items.into_iter().map(f).collect()
+    }
+}
+
+/// The pool's threads kept awake a moment after an [`each_shared`] call. A vector environment
+/// calls again after its Python layer (tens of microseconds); a pool thread that went to sleep
+/// in between takes about as long to wake (more in a virtual machine, where its idle CPU halts),
+/// so the call's first items would run on the calling thread alone. Each call ends by giving
+/// `helpers` pool threads a job that waits (a `spin_loop`, light on a hyperthread's sibling)
+/// until the next call begins or [`LINGER`] has passed, whichever comes first; the next call's
+/// items then find those threads awake. Nothing is computed there, so results are unchanged.
+#[cfg(feature = "parallel")]
+mod linger {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    use std::time::{Duration, Instant};
+
+    /// How long a pool thread waits for the next call before it may sleep.
+    pub(super) const LINGER: Duration = Duration::from_micros(300);
+
+    /// Calls begun so far: a waiting thread stops when it changes.
+    static EPOCH: AtomicU64 = AtomicU64::new(0);
+
+    /// A call begins: the threads waiting since the last one stop waiting. -> this call's epoch.
+    pub(super) fn begin() -> u64 {
+        EPOCH.fetch_add(1, Ordering::AcqRel) + 1
+    }
+
+    /// A call ended: `helpers` pool threads wait for the next one.
+    pub(super) fn after(epoch: u64, helpers: usize) {
+        for _ in 0..helpers {
+            rayon::spawn(move || {
+                let until = Instant::now() + LINGER;
+                let mut spins = 0u32;
+                while EPOCH.load(Ordering::Acquire) == epoch {
+                    std::hint::spin_loop();
+                    spins = spins.wrapping_add(1);
+                    if spins % 64 == 0 && Instant::now() >= until {
+                        break;
+                    }
+                }
+            });
+        }
     }
 }
 
