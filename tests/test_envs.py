@@ -373,15 +373,88 @@ def test_actions_of_the_wrong_shape_or_nan_are_refused_and_out_of_range_clipped(
     np.testing.assert_array_equal(a, b)
     d = gym.make(IDS[0], action_type="discrete").unwrapped
     d.reset(seed=0)
-    for bad in (3, -1, 0.5):
-        with pytest.raises(mp.InputError, match="discrete action must be"):
+    for bad, shown in ((3, "3"), (-1, "-1"), (0.5, "0.5"), (np.nan, "nan")):
+        with pytest.raises(mp.InputError, match=rf"^a discrete action must be 0, 1 or 2, got {shown} at index \(0,\)$"):
             d.step(bad)
     v = gym.make_vec(IDS[1], num_envs=4)
     v.reset(seed=0)
     with pytest.raises(mp.InputError, match=r"action must have shape \(4, 1\)"):
         v.step(np.zeros(3))
-    with pytest.raises(mp.InputError, match="finite"):
+    with pytest.raises(mp.InputError, match=r"^action must be finite, got inf at index \(0, 0\)$"):
         v.step(np.full((4, 1), np.inf))
+    with pytest.raises(mp.InputError, match=r"^action must be finite, got -inf at index \(2, 0\)$"):
+        v.step(np.array([[0.0], [1.0], [-np.inf], [0.0]]))
+    md = gym.make_vec(IDS[0], num_envs=3, n=3, actuated=[0, 2], action_type="discrete")
+    md.reset(seed=0)
+    with pytest.raises(mp.InputError, match=r"^a discrete action must be 0, 1 or 2, got 7 at index \(1, 1\)$"):
+        md.step(np.array([[0, 1], [2, 7], [1, 1]]))
+
+
+def _outcome_by_hand(task, states):
+    """Reward and end of each state row (theta, omega, [x, v]) from the task's documented rules,
+    written here with the tip's height from the links' Cartesian ends."""
+    n = task.n
+    theta = states[:, :n]
+    if isinstance(task, envs.tasks.Acrobot):
+        ends_y = -np.cumsum(task.chain.lengths * np.cos(theta), axis=1)
+        ended = ends_y[:, -1] > task.goal * np.sum(task.chain.lengths)
+        return np.where(ended, 0.0, -1.0), ended
+    off_track = np.abs(states[:, 2 * n]) > task.x_limit
+    if task.task == "balance":
+        lean = np.abs(np.angle(np.exp(1j * (theta - np.pi))))
+        return np.ones(len(states)), off_track | np.any(lean > task.angle_limit, axis=1)
+    return np.mean((1 - np.cos(theta)) / 2, axis=1), off_track
+
+
+@pytest.mark.parametrize("env_id,kwargs", [
+    (IDS[0], {"max_torque": 6.0, "goal": 0.2}),
+    (IDS[0], {"n": 3, "actuated": [0, 2], "action_type": "discrete", "max_torque": 8.0, "goal": 0.2}),
+    (IDS[0], {"actuated": "first", "max_torque": 8.0, "goal": 0.2}),
+    (IDS[1], {}), (IDS[1], {"n": 2, "angle_limit": 0.3}), (IDS[1], {"n": 2, "task": "swingup", "x_limit": 0.5}),
+])
+def test_rewards_and_ends_follow_the_documented_rules_and_actions_their_joints(env_id, kwargs):
+    """The vector env's rewards and ends against the rules written out here from its states, and
+    each step against the core stepped with the action's inputs written out by hand (clipped,
+    scaled, on the actuated joints or the cart), over random actions with episodes ending."""
+    num = 16
+    v = gym.make_vec(env_id, num_envs=num, max_episode_steps=40, **kwargs)
+    task = v.task
+    v.reset(seed=3)
+    v.action_space.seed(4)
+    seen = set()
+    for step in range(120):
+        before = v._engine.states().copy()
+        done_before = v._done.copy()
+        a = v.action_space.sample()
+        if step % 7 == 0 and not task.discrete:
+            a = a * 3.0  # beyond the space: clipped
+        obs, reward, terminated, truncated, _ = v.step(a)
+        states = v._engine.states()
+        want_reward, want_ended = _outcome_by_hand(task, states)
+        moved = ~done_before
+        np.testing.assert_allclose(reward[moved], want_reward[moved], rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(terminated[moved], want_ended[moved])
+        assert not reward[done_before].any() and not terminated[done_before].any()  # started anew
+        seen.update(bool(x) for x in terminated[moved])
+        # The inputs: the same step through Steppers.step with torques and forces by hand.
+        rows = before[moved]
+        n = task.n
+        u = np.asarray(a, dtype=float).reshape(num, -1)[moved]
+        level = u - 1.0 if task.discrete else np.clip(u, -1.0, 1.0)
+        torques = np.zeros((len(rows), n))
+        forces = np.zeros(len(rows) if task.cart else 0)
+        if task.cart:
+            forces[:] = level[:, 0] * task.max_force
+        else:
+            torques[:, list(task.joints)] = level * task.scale
+        idx = np.flatnonzero(moved)
+        ref = mp._core.Steppers(task.chain._c, len(rows), method="rk4", rtol=1e-10, atol=1e-12, max_steps=10**8,
+                                    dt=task.dt / task.substeps)
+        for r, row in enumerate(rows):
+            ref.reset(r, row[:n], row[n:2 * n], (row[2 * n], row[2 * n + 1]) if task.cart else (0.0, 0.0))
+        got, _ = ref.step(torques.ravel(), forces, task.dt)
+        np.testing.assert_array_equal(got.reshape(len(rows), -1), states[idx])
+    assert seen == {True, False}, seen  # episodes ended and went on
 
 
 def test_stepping_after_termination_warns_once_and_earns_nothing():

@@ -2,7 +2,7 @@
 //! environments' engine, [`core::Steppers`]). Arrays cross flat; the GIL is released while the
 //! copies step.
 use multipendulum_core as core;
-use numpy::{PyArray1, PyReadonlyArray1};
+use numpy::{PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadwriteArray1};
 use pyo3::prelude::*;
 
 use core::{Form, Method, Settings};
@@ -11,7 +11,74 @@ use crate::chain::PyChain;
 use crate::{slice, to_py, InputError};
 
 pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
-    m.add_class::<PySteppers>()
+    m.add_class::<PySteppers>()?;
+    m.add_class::<PyTask>()
+}
+
+/// Observation columns from flat `(kind, index)` pairs: kind 0 a state row's value, 1 its
+/// cosine, 2 its sine.
+fn columns_of(columns: &PyReadonlyArray1<'_, i64>) -> PyResult<Vec<core::Column>> {
+    let pairs = columns.as_slice().map_err(|_| InputError::new_err("columns must be a C-contiguous int64 array"))?;
+    if pairs.len() % 2 != 0 {
+        return Err(InputError::new_err("columns must hold (kind, index) pairs"));
+    }
+    pairs
+        .chunks(2)
+        .map(|p| match (p[0], usize::try_from(p[1])) {
+            (0, Ok(i)) => Ok(core::Column::Value(i)),
+            (1, Ok(i)) => Ok(core::Column::Cos(i)),
+            (2, Ok(i)) => Ok(core::Column::Sin(i)),
+            _ => Err(InputError::new_err(format!("an observation column is (kind 0, 1 or 2, index >= 0), got ({}, {})", p[0], p[1]))),
+        })
+        .collect()
+}
+
+/// An environment's actions, observation and outcome over copies of one chain
+/// ([`core::Task`]): what `Steppers.act` applies around a step.
+#[pyclass(module = "multipendulum._core", name = "Task", frozen)]
+pub(crate) struct PyTask {
+    inner: core::Task,
+}
+
+#[pymethods]
+impl PyTask {
+    /// `targets`: each action component's input, a joint's index or None for the cart's force;
+    /// `scale`: each component's largest input; `discrete`: actions 0, 1, 2 are `-scale, 0,
+    /// +scale`, else numbers clipped to [-1, 1] and scaled; `columns` as for
+    /// `Steppers.observe`; `goal`: "height" (`above`: the tip's rise above the pivot that ends
+    /// the episode), "balance" (`x_limit`, `angle_limit`) or "swingup" (`x_limit`).
+    #[new]
+    #[pyo3(signature = (chain, *, discrete, targets, scale, columns, goal, above=None, x_limit=None, angle_limit=None))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        py: Python<'_>,
+        chain: &PyChain,
+        discrete: bool,
+        targets: Vec<Option<usize>>,
+        scale: Vec<f64>,
+        columns: PyReadonlyArray1<'_, i64>,
+        goal: &str,
+        above: Option<f64>,
+        x_limit: Option<f64>,
+        angle_limit: Option<f64>,
+    ) -> PyResult<Self> {
+        let need = |v: Option<f64>, name: &str| v.ok_or_else(|| InputError::new_err(format!("goal {goal:?} needs {name}")));
+        let goal = match goal {
+            "height" => core::Goal::Height { above: need(above, "above")? },
+            "balance" => core::Goal::Balance { x_limit: need(x_limit, "x_limit")?, angle_limit: need(angle_limit, "angle_limit")? },
+            "swingup" => core::Goal::SwingUp { x_limit: need(x_limit, "x_limit")? },
+            _ => return Err(InputError::new_err(format!("goal must be 'height', 'balance' or 'swingup', got {goal:?}"))),
+        };
+        let targets = targets.into_iter().map(|t| t.map_or(core::Target::Cart, core::Target::Joint)).collect();
+        let inner = core::Task::new(&chain.inner, discrete, targets, scale, columns_of(&columns)?, goal).map_err(|e| to_py(py, e))?;
+        Ok(PyTask { inner })
+    }
+
+    /// Components of one action.
+    #[getter]
+    fn width(&self) -> usize {
+        self.inner.width()
+    }
 }
 
 #[pyclass(module = "multipendulum._core", name = "Steppers")]
@@ -77,6 +144,23 @@ impl PySteppers {
         Ok(())
     }
 
+    /// Start the copies `indices` anew at t = 0, copy `indices[r]` from row r of `rows`
+    /// (len(indices) x state_len, flat: theta (N), omega (N), then the cart's x, v).
+    fn reset_rows(&mut self, py: Python<'_>, indices: PyReadonlyArray1<'_, i64>, rows: PyReadonlyArray1<'_, f64>) -> PyResult<()> {
+        let indices = indices.as_slice().map_err(|_| InputError::new_err("indices must be a C-contiguous int64 array"))?;
+        let rows = slice("rows", &rows)?;
+        let (k, n) = (self.inner.state_len(), self.inner.chain().n());
+        if rows.len() != indices.len() * k {
+            return Err(InputError::new_err(format!("rows must have len(indices) x {k} = {} values, got {}", indices.len() * k, rows.len())));
+        }
+        for (&i, row) in indices.iter().zip(rows.chunks(k)) {
+            let i = usize::try_from(i).map_err(|_| InputError::new_err(format!("index {i} out of range for {} copies", self.inner.len())))?;
+            let cart = if k > 2 * n { [row[2 * n], row[2 * n + 1]] } else { [0.0, 0.0] };
+            self.inner.reset(i, &row[..n], &row[n..2 * n], cart).map_err(|e| to_py(py, e))?;
+        }
+        Ok(())
+    }
+
     /// Hold joint torques (count x N, flat) and cart forces (count, or empty without a cart),
     /// then advance every copy by `span` (whole steps of a fixed-step method's grid), without
     /// the GIL.
@@ -108,22 +192,56 @@ impl PySteppers {
     /// cosine, 2 its sine. Returns count x (number of pairs) values, flat.
     fn observe<'py>(&self, py: Python<'py>, states: PyReadonlyArray1<'_, f64>, columns: PyReadonlyArray1<'_, i64>) -> PyResult<Bound<'py, PyArray1<f64>>> {
         let states = slice("states", &states)?;
-        let pairs = columns.as_slice().map_err(|_| InputError::new_err("columns must be a C-contiguous int64 array"))?;
-        if pairs.len() % 2 != 0 {
-            return Err(InputError::new_err("columns must hold (kind, index) pairs"));
-        }
-        let columns = pairs
-            .chunks(2)
-            .map(|p| match (p[0], usize::try_from(p[1])) {
-                (0, Ok(i)) => Ok(core::Column::Value(i)),
-                (1, Ok(i)) => Ok(core::Column::Cos(i)),
-                (2, Ok(i)) => Ok(core::Column::Sin(i)),
-                _ => Err(InputError::new_err(format!("an observation column is (kind 0, 1 or 2, index >= 0), got ({}, {})", p[0], p[1]))),
-            })
-            .collect::<PyResult<Vec<_>>>()?;
+        let columns = columns_of(&columns)?;
         let mut out = vec![0.0; self.inner.len() * columns.len()];
         self.inner.observe_into(states, &columns, &mut out).map_err(|e| to_py(py, e))?;
         Ok(PyArray1::from_vec(py, out))
+    }
+
+    /// One environment step of every copy under `task` (`Task`): `actions` (count x the task's
+    /// width, flat) become the inputs held over `span`, the active copies step (`active` as for
+    /// `step`; a copy that does not move earns 0 and does not end), and every copy reports.
+    /// `steps` (uint64, one per copy) counts each copy's steps in its episode, in place;
+    /// `limit` truncates an episode at that count (None: never). Returns the states
+    /// (count x state_len) and balances (count x 3) as `step`, the observations (count x the
+    /// task's columns), the rewards, the ends, the truncations, and how many copies ended.
+    /// `batched`: a refused action is named by (copy, component), else by (component,). Without
+    /// the GIL.
+    #[pyo3(signature = (task, actions, span, batched, steps, limit=None, active=None))]
+    #[allow(clippy::type_complexity, clippy::too_many_arguments)]
+    fn act<'py>(
+        &mut self,
+        py: Python<'py>,
+        task: &PyTask,
+        actions: PyReadonlyArray1<'_, f64>,
+        span: f64,
+        batched: bool,
+        mut steps: PyReadwriteArray1<'_, u64>,
+        limit: Option<u64>,
+        active: Option<PyReadonlyArray1<'_, bool>>,
+    ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<bool>>, Bound<'py, PyArray1<bool>>, usize)> {
+        let actions = slice("actions", &actions)?;
+        let active = match &active {
+            Some(a) => a.as_slice().map_err(|_| InputError::new_err("active must be a C-contiguous bool array"))?,
+            None => &[],
+        };
+        let steps = steps.as_slice_mut().map_err(|_| InputError::new_err("steps must be a C-contiguous uint64 array"))?;
+        let (count, k, task) = (self.inner.len(), self.inner.state_len(), &task.inner);
+        let width = task.columns.len();
+        let (mut states, mut balance, mut obs) = (vec![0.0; count * k], vec![0.0; count * 3], vec![0.0; count * width]);
+        let (mut reward, mut terminated, mut truncated) = (vec![0.0; count], vec![false; count], vec![false; count]);
+        let inner = &mut self.inner;
+        let out = core::Acted { states: &mut states, balance: &mut balance, obs: &mut obs, reward: &mut reward, terminated: &mut terminated, truncated: &mut truncated };
+        let ended = py.detach(|| inner.act(task, actions, batched, span, active, (steps, limit), out)).map_err(|e| to_py(py, e))?;
+        Ok((
+            PyArray1::from_vec(py, states).reshape([count, k])?,
+            PyArray1::from_vec(py, balance).reshape([count, 3])?,
+            PyArray1::from_vec(py, obs).reshape([count, width])?,
+            PyArray1::from_vec(py, reward),
+            PyArray1::from_vec(py, terminated),
+            PyArray1::from_vec(py, truncated),
+            ended,
+        ))
     }
 
     /// Every copy's state (count x state_len, flat) and its time, energy (lab frame) and

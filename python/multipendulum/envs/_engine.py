@@ -124,6 +124,11 @@ class Engine:
                        (float(cart[0]), float(cart[1])))
         self._states = self._balance = None
 
+    def reset_rows(self, which: npt.NDArray[np.intp], rows: Array) -> None:
+        """Copies ``which`` anew from state rows ``(theta, omega, [x, v])``, one per copy."""
+        self._st.reset_rows(np.ascontiguousarray(which, dtype=np.int64), np.ascontiguousarray(rows, dtype=float).ravel())
+        self._states = self._balance = None
+
     def reset_all(self, theta: Array, omega: Array) -> None:
         """Every copy anew from the rows of ``theta``, ``omega`` (B, N), on a fixed pivot."""
         self._st.reset_all(np.ascontiguousarray(theta, dtype=float).ravel(), np.ascontiguousarray(omega, dtype=float).ravel())
@@ -135,6 +140,17 @@ class Engine:
         act = None if active is None or bool(np.all(active)) else np.ascontiguousarray(active, dtype=bool)
         states, balance = self._st.step(np.ascontiguousarray(torques, dtype=float).ravel(), f, self.dt, act)
         self._states, self._balance = states.reshape(self.num, -1), balance.reshape(self.num, 3)
+
+    def act(self, task: _core.Task, actions: Array, batched: bool, steps: npt.NDArray[np.uint64],
+            limit: Optional[int] = None, active: Optional[npt.NDArray[np.bool_]] = None
+            ) -> Tuple[Array, Array, npt.NDArray[np.bool_], npt.NDArray[np.bool_], int]:
+        """One env step of every active copy under the core's ``task``: flat float64 ``actions``
+        (B x the task's width) -> observations (B, k), rewards (B,), ends (B,), truncations (B,)
+        at ``limit`` steps of ``steps`` (each copy's count in its episode, advanced in place),
+        and how many copies ended. A copy not ``active`` earns 0 and does not end."""
+        self._states, self._balance, obs, reward, ended, truncated, count = self._st.act(
+            task, actions, self.dt, batched, steps, limit, active)
+        return obs, reward, ended, truncated, count
 
     def _report(self) -> Tuple[Array, Array]:
         """The states and balances of the last step, or (after a reset) the core's report of both."""

@@ -44,6 +44,7 @@ class PendulumEnv(gym.Env[Any, Any]):
         self._states: Optional[Array] = None
         self._terminated = False
         self._warned = False
+        self._steps = np.zeros(1, dtype=np.uint64)  # (the TimeLimit wrapper truncates a single environment)
         self._renderer: Optional[Renderer] = None
 
     @property
@@ -79,11 +80,8 @@ class PendulumEnv(gym.Env[Any, Any]):
     def step(self, action: Any) -> Tuple[Array, float, bool, bool, Info]:
         if self._states is None:
             raise gym.error.ResetNeeded("call reset() before step()")
-        torques, forces = self.task.inputs(action, ())
-        self._engine.step(torques[None], None if forces is None else forces.reshape(1))
+        obs, reward, terminated, _, _ = self._engine.act(self.task.core, self.task.actions(action, ()), False, self._steps)
         self._states = self._engine.states()
-        obs = self._engine.observe(self.task.columns)
-        reward, terminated = self.task.outcome(self._states, obs)
         r = float(reward[0])
         if self._terminated:
             # As gymnasium's CartPole: stepping on after the end says so, once, and earns nothing.
@@ -162,8 +160,11 @@ class PendulumVectorEnv(VectorEnv[Any, Any, Any]):
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self._rngs: List[np.random.Generator] = [seeding.np_random(None)[0] for _ in range(self.num_envs)]
         self._states: Optional[Array] = None
-        self._steps = np.zeros(self.num_envs, dtype=np.int64)
+        self._steps = np.zeros(self.num_envs, dtype=np.uint64)
         self._done = np.zeros(self.num_envs, dtype=np.bool_)
+        self._ended = False  # any of _done
+        self._none_done = np.zeros(self.num_envs, dtype=np.bool_)
+        self._none_done.flags.writeable = False
         self._renderer: Optional[Renderer] = None
 
     @property
@@ -173,17 +174,19 @@ class PendulumVectorEnv(VectorEnv[Any, Any, Any]):
             raise gym.error.ResetNeeded("call reset() before reading the state")
         return self.task.public_state(self._states)
 
-    def _start(self, i: int, options: Optional[Dict[str, Any]]) -> None:
+    def _start_each(self, which: npt.NDArray[np.intp], options: Optional[Dict[str, Any]]) -> None:
+        """Environments ``which`` start anew: from ``options["state"]``'s rows, else each drawn
+        by its own generator."""
+        task = self.task
         if options is not None and "state" in options:
-            theta, omega, cart = self.task.core_state(np.asarray(options["state"])[i])
-        else:
-            low, high = self.task.reset_bounds(options)
-            row = self.task.initial(self._rngs[i], low, high)
-            n = self.task.n
-            theta, omega = row[:n], row[n:2 * n]
-            cart = (float(row[2 * n]), float(row[2 * n + 1])) if self.task.cart else (0.0, 0.0)
-        self._engine.reset(i, theta, omega, cart)
-        self._steps[i] = 0
+            states = np.asarray(options["state"])
+            for i in which:
+                self._engine.reset(int(i), *task.core_state(states[i]))
+        elif len(which):
+            low, high = task.reset_bounds(options)
+            rngs = self._rngs
+            self._engine.reset_rows(which, np.stack([task.initial(rngs[i], low, high) for i in which]))
+        self._steps[which] = 0
 
     def reset(self, *, seed: Union[None, int, Sequence[Optional[int]]] = None,
               options: Optional[Dict[str, Any]] = None) -> Tuple[Array, Info]:
@@ -198,65 +201,57 @@ class PendulumVectorEnv(VectorEnv[Any, Any, Any]):
             if mask.shape != (self.num_envs,) or mask.dtype != np.bool_ or not mask.any():
                 raise InputError(f"options['reset_mask'] must be a bool array of shape ({self.num_envs},) "
                                  f"with at least one True, got {mask!r}")
-        for i in np.flatnonzero(mask):
+        which = np.flatnonzero(mask)
+        for i in which:
             if seeds[i] is not None or self._states is None:
                 self._rngs[i] = seeding.np_random(seeds[i])[0]
-            self._start(int(i), options)
-        self._done[mask] = False
+        self._start_each(which, options)
+        self._done = self._done & ~mask
+        self._ended = bool(self._done.any())
         self._states = self._engine.states()
         return self._engine.observe(self.task.columns), self._infos(self._engine.balance(), mask)
 
-    def _infos(self, balance: Array, mask: npt.NDArray[np.bool_]) -> Info:
-        info: Info = {}
-        columns = balance.T.copy() if mask.all() else np.where(mask, balance.T, 0.0)
-        for k, key in enumerate(("t", "energy", "energy_error")):
-            info[key] = columns[k]
-            info["_" + key] = mask.copy()
-        return info
+    def _infos(self, balance: Array, mask: Optional[npt.NDArray[np.bool_]]) -> Info:
+        """Each environment's time, energy and residual, where ``mask`` (None: everywhere)."""
+        if mask is None:
+            mask = np.ones(self.num_envs, dtype=np.bool_)
+            columns = balance.T.copy()
+        else:
+            columns = np.where(mask, balance.T, 0.0)
+        return {"t": columns[0], "_t": mask.copy(), "energy": columns[1], "_energy": mask.copy(),
+                "energy_error": columns[2], "_energy_error": mask.copy()}
 
     def step(self, actions: Any) -> Tuple[Array, Array, npt.NDArray[np.bool_], npt.NDArray[np.bool_], Info]:
         if self._states is None:
             raise gym.error.ResetNeeded("call reset() before step()")
-        torques, forces = self.task.inputs(actions, (self.num_envs,))
+        a = self.task.actions(actions, (self.num_envs,))
         mode = self.autoreset_mode
-        ended = bool(self._done.any())
-        if mode == AutoresetMode.DISABLED and ended:
+        if mode == AutoresetMode.DISABLED and self._ended:
             raise InputError("autoreset_mode='Disabled': reset the environments that ended "
                              f"(indices {np.flatnonzero(self._done).tolist()}) with reset(options={{'reset_mask': ...}})")
-        # The environments that ended last step start anew instead of stepping (NEXT_STEP).
-        restart = self._done.copy() if mode == AutoresetMode.NEXT_STEP and ended else None
-        if restart is not None:
-            for i in np.flatnonzero(restart):
-                self._start(int(i), None)
-            self._engine.step(torques, forces, ~restart)
-            self._steps[~restart] += 1
-        else:
-            self._engine.step(torques, forces)
-            self._steps += 1
-        self._states = self._engine.states()
-        balance = self._engine.balance()
-        obs = self._engine.observe(self.task.columns)
-        reward, terminated = self.task.outcome(self._states, obs)
-        truncated = (self._steps >= self.max_episode_steps) if self.max_episode_steps is not None \
-            else np.zeros(self.num_envs, dtype=np.bool_)
-        if restart is not None:
-            reward[restart], terminated[restart], truncated[restart] = 0.0, False, False
-        everyone = np.ones(self.num_envs, dtype=np.bool_)
-        info = self._infos(balance, everyone)
-        done = terminated | truncated
-        if mode == AutoresetMode.SAME_STEP and done.any():
+        # The environments that ended last step start anew instead of stepping (NEXT_STEP); the
+        # core gives them reward 0 and no end.
+        restart = None
+        if mode == AutoresetMode.NEXT_STEP and self._ended:
+            restart = self._done
+            self._start_each(np.flatnonzero(restart), None)
+        obs, reward, terminated, truncated, ended = self._engine.act(
+            self.task.core, a, True, self._steps, self.max_episode_steps, None if restart is None else ~restart)
+        self._states, balance = self._engine.states(), self._engine.balance()
+        info = self._infos(balance, None)
+        done = terminated | truncated if ended else self._none_done
+        if mode == AutoresetMode.SAME_STEP and ended:
             final_obs = np.full(self.num_envs, None, dtype=object)
             for i in np.flatnonzero(done):
                 final_obs[i] = obs[i].copy()
             info["final_obs"], info["_final_obs"] = final_obs, done.copy()
             info["final_info"], info["_final_info"] = self._infos(balance, done), done.copy()
-            for i in np.flatnonzero(done):
-                self._start(int(i), None)
+            self._start_each(np.flatnonzero(done), None)
             self._states = self._engine.states()
             obs = self._engine.observe(self.task.columns)
-            info.update(self._infos(self._engine.balance(), everyone))
-            done = np.zeros(self.num_envs, dtype=np.bool_)
-        self._done = done
+            info.update(self._infos(self._engine.balance(), None))
+            done, ended = self._none_done, 0
+        self._done, self._ended = done, ended > 0
         return obs, reward, terminated, truncated, info
 
     def render(self) -> Optional[Tuple[npt.NDArray[np.uint8], ...]]:

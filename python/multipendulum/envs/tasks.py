@@ -1,7 +1,9 @@
 """What each environment asks of its chain: the action space and how actions become joint
 torques or a cart force, the observation, the reward and the end of an episode, and the start.
-Every function works on a batch (leading axis B), so one environment and a vector of them share
-the same arithmetic. Angles are the package's: absolute, from the downward vertical,
+The task's keywords are checked here and made into the core's ``Task`` (:attr:`Task.core`),
+which turns a batch of actions into inputs and computes the observations, rewards and ends in
+the same call as the step, so one environment and a vector of them share the same arithmetic.
+Angles are the package's: absolute, from the downward vertical,
 counter-clockwise positive (upright is ``theta = pi``)."""
 from __future__ import annotations
 
@@ -13,12 +15,11 @@ import numpy.typing as npt
 from gymnasium import spaces
 from gymnasium.envs.classic_control import utils
 
+import multipendulum._core as _core
+
 from .._chain import Cart, Chain
 from ..errors import InputError
 from ._engine import Array, build_chain, count, per_link, positive, refuse_unknown, stepping
-
-#: Discrete actions of the acrobot, as gymnasium's Acrobot-v1: torque -max, 0, +max.
-DISCRETE_LEVELS = (-1.0, 0.0, 1.0)
 
 #: Kinds of observation column (``Task.columns``): a state row's value, its cosine, its sine.
 VALUE, COS, SIN = 0, 1, 2
@@ -26,11 +27,6 @@ VALUE, COS, SIN = 0, 1, 2
 
 def _columns(*groups: Sequence[Tuple[int, int]]) -> npt.NDArray[np.int64]:
     return np.array([c for g in groups for c in g], dtype=np.int64).ravel()
-
-
-def _wrap(a: Array) -> Array:
-    """Angles into [-pi, pi)."""
-    return (a + np.pi) % (2 * np.pi) - np.pi
 
 
 def _numbers(action: object, what: str) -> np.ndarray:
@@ -65,35 +61,21 @@ class Task:
     def cart(self) -> bool:
         return self.chain.cart is not None
 
-    def _continuous(self, actions: object, batch: Tuple[int, ...]) -> Array:
-        """Box(-1, 1) actions -> physical values: out-of-range values are clipped (as
-        gymnasium's Pendulum and MountainCarContinuous do), NaN and inf refused."""
+    def actions(self, actions: object, batch: Tuple[int, ...]) -> Array:
+        """Actions of the action space's shape (``batch`` + one action's) as the flat float64
+        array the core's :attr:`core` takes; their values are the core's to check (continuous:
+        clipped to [-1, 1], as gymnasium's Pendulum and MountainCarContinuous do, NaN and inf
+        refused; discrete: 0, 1 or 2)."""
         shape = batch + tuple(self.single_action_space.shape or ())
-        a = actions if type(actions) is np.ndarray and actions.dtype == np.float64 else \
-            _numbers(actions, "action").astype(np.float64)
+        a = actions if type(actions) is np.ndarray else _numbers(actions, "action")
+        if a.dtype.kind not in "biuf":
+            raise InputError(f"action must be numbers, got dtype {a.dtype} ({actions!r})")
         if a.shape != shape:
-            if a.size == int(np.prod(shape)) and batch == () and a.ndim <= 1:
+            if not self.discrete and a.size == int(np.prod(shape)) and batch == () and a.ndim <= 1:
                 a = a.reshape(shape)  # a bare number for a one-value action
             else:
                 raise InputError(f"action must have shape {shape}, got {a.shape}")
-        if not np.isfinite(a).all():
-            where = tuple(int(i) for i in np.argwhere(~np.isfinite(a))[0])
-            raise InputError(f"action must be finite, got {a[where]} at index {where}")
-        return np.clip(a, -1.0, 1.0) * self.scale
-
-    def _discrete(self, actions: object, batch: Tuple[int, ...], k: int) -> Array:
-        """Discrete(3) (one motor) or MultiDiscrete([3] * k) -> torques -max, 0, +max."""
-        shape = batch + ((k,) if k > 1 else ())
-        a = _numbers(actions, "action")
-        if a.shape != shape:
-            raise InputError(f"action must have shape {shape}, got {a.shape}")
-        if a.dtype.kind == "f":
-            if not np.all(np.isfinite(a)) or np.any(a != np.round(a)):
-                raise InputError(f"a discrete action must be an integer 0, 1 or 2, got {actions!r}")
-        if np.any((a < 0) | (a > 2)):
-            raise InputError(f"a discrete action must be 0, 1 or 2, got {actions!r}")
-        levels = np.asarray(DISCRETE_LEVELS)[a.astype(np.intp)]
-        return levels.reshape(batch + (k,)) * self.scale
+        return np.ascontiguousarray(a, dtype=np.float64).reshape(-1)
 
     def reset_bounds(self, options: Optional[Dict[str, Any]]) -> Tuple[float, float]:
         """``options={"low": .., "high": ..}`` as gymnasium's classic-control environments take."""
@@ -101,9 +83,9 @@ class Task:
         return float(low), float(high)
 
     # -- each task's own --------------------------------------------------------------------
-    def inputs(self, actions: object, batch: Tuple[int, ...]) -> Tuple[Array, Optional[Array]]:
-        """-> joint torques (B, N) and cart forces (B,) or None."""
-        raise NotImplementedError
+    #: The actions' inputs, the observation, the reward and the end, as the core applies them
+    #: around each step (``Steppers.act``): made by each task from its keywords.
+    core: _core.Task
 
     def initial(self, rng: np.random.Generator, low: float, high: float) -> Array:
         """One start, a core state row ``(theta, omega, [x, v])``."""
@@ -113,10 +95,6 @@ class Task:
     #: flat pairs ``(kind, index)``, kind :data:`VALUE`, :data:`COS` or :data:`SIN` of the row's
     #: entry ``index``.
     columns: npt.NDArray[np.int64]
-
-    def outcome(self, states: Array, obs: Array) -> Tuple[Array, npt.NDArray[np.bool_]]:
-        """-> reward (B,), terminated (B,), given the states and their observations."""
-        raise NotImplementedError
 
     def public_state(self, states: Array) -> Array:
         """The state as the environment shows it (``env.state``)."""
@@ -185,33 +163,17 @@ class Acrobot(Task):
             self.single_action_space = spaces.Box(-1.0, 1.0, (k,), dtype=np.float64)
         self.goal = as_fraction(goal)
         self.low, self.high = float(low), float(high)
-        self._lengths = self.chain.lengths
-        self.reach = float(np.sum(self._lengths))
+        self.reach = float(np.sum(self.chain.lengths))
         n_ = self.n
         hi = np.concatenate([np.ones(2 * n_), np.full(n_, np.inf)])
         self.single_observation_space = spaces.Box(-hi, hi, dtype=np.float64)
         a = range(n_)
         self.columns = _columns([(COS, i) for i in a], [(SIN, i) for i in a], [(VALUE, n_ + i) for i in a])
-
-    def inputs(self, actions: object, batch: Tuple[int, ...]) -> Tuple[Array, Optional[Array]]:
-        k = len(self.joints)
-        u = self._discrete(actions, batch, k) if self.discrete else self._continuous(actions, batch)
-        if k == self.n:
-            return u.reshape(batch + (k,)), None
-        torques = np.zeros(batch + (self.n,))
-        if k == 1:
-            torques[..., self.joints[0]] = u.reshape(batch)
-        else:
-            torques[..., list(self.joints)] = u.reshape(batch + (k,))
-        return torques, None
+        self.core = _core.Task(self.chain._c, discrete=self.discrete, targets=list(self.joints), scale=self.scale.tolist(),
+                               columns=self.columns, goal="height", above=self.goal * self.reach)
 
     def initial(self, rng: np.random.Generator, low: float, high: float) -> Array:
         return rng.uniform(low=low, high=high, size=(2 * self.n,))
-
-    def outcome(self, states: Array, obs: Array) -> Tuple[Array, npt.NDArray[np.bool_]]:
-        height = -np.einsum("ij,j->i", obs[:, :self.n], self._lengths)  # obs starts with cos theta (no BLAS threads)
-        terminated = height > self.goal * self.reach
-        return terminated.astype(np.float64) - 1.0, terminated
 
 
 def as_fraction(goal: object) -> float:
@@ -267,10 +229,9 @@ class CartPole(Task):
         a = range(n_)
         self.columns = _columns([(VALUE, 2 * n_)], [(COS, i) for i in a], [(SIN, i) for i in a],
                                 [(VALUE, 2 * n_ + 1)], [(VALUE, n_ + i) for i in a])
-
-    def inputs(self, actions: object, batch: Tuple[int, ...]) -> Tuple[Array, Optional[Array]]:
-        f = self._continuous(actions, batch)
-        return np.zeros(batch + (self.n,)), f.reshape(batch)
+        limits = {"x_limit": self.x_limit} if task == "swingup" else {"x_limit": self.x_limit, "angle_limit": self.angle_limit}
+        self.core = _core.Task(self.chain._c, discrete=False, targets=[None], scale=[self.max_force], columns=self.columns,
+                               goal="balance" if task == "balance" else "swingup", **limits)
 
     def initial(self, rng: np.random.Generator, low: float, high: float) -> Array:
         n = self.n
@@ -278,15 +239,6 @@ class CartPole(Task):
         if self.task == "balance":
             s[1:n + 1] += np.pi
         return np.concatenate([s[1:n + 1], s[n + 2:], [s[0], s[n + 1]]])
-
-    def outcome(self, states: Array, obs: Array) -> Tuple[Array, npt.NDArray[np.bool_]]:
-        n = self.n
-        off_track = np.abs(states[:, 2 * n]) > self.x_limit
-        if self.task == "balance":
-            lean = np.abs(_wrap(states[:, :n] - np.pi))
-            terminated = off_track | np.any(lean > self.angle_limit, axis=1)
-            return np.ones(len(states)), terminated
-        return np.mean(1.0 - obs[:, 1:n + 1], axis=1) / 2, off_track  # obs[1:n+1]: cos theta
 
     def public_state(self, states: Array) -> Array:
         n = self.n

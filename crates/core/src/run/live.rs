@@ -7,6 +7,7 @@
 use super::bank::{self, Bank};
 use super::driver::Run;
 use super::energy::EnergyBalance;
+use super::task::Task;
 use super::simulate::{fill_rates, initial_state, Books, Settings, Terms};
 use crate::dynamics::base::Force;
 use crate::dynamics::system::{ChainSystem, Form};
@@ -28,7 +29,7 @@ pub enum Column {
 }
 
 impl Column {
-    fn index(self) -> usize {
+    pub(crate) fn index(self) -> usize {
         match self {
             Column::Value(i) | Column::Cos(i) | Column::Sin(i) => i,
         }
@@ -75,6 +76,17 @@ unsafe fn observe_avx512(states: &[f64], k: usize, columns: &[Column], out: &mut
 #[target_feature(enable = "avx2,fma")]
 unsafe fn observe_avx2(states: &[f64], k: usize, columns: &[Column], out: &mut [f64]) {
     observe(states, k, columns, out)
+}
+
+/// Where [`Steppers::act`] writes, each count rows: the state rows and balances (as
+/// [`Steppers::step`]), the observations, rewards, ends and truncations.
+pub struct Acted<'a> {
+    pub states: &'a mut [f64],
+    pub balance: &'a mut [f64],
+    pub obs: &'a mut [f64],
+    pub reward: &'a mut [f64],
+    pub terminated: &'a mut [bool],
+    pub truncated: &'a mut [bool],
 }
 
 /// A chain, its current state and its integrator, advanced on request.
@@ -480,6 +492,43 @@ impl Steppers {
             Some((i, Error::Input(m))) => Err(Error::input(format!("copy {i}: {m}"))),
             Some((_, e)) => Err(e),
         }
+    }
+
+    /// One environment step of every copy under `task`: `actions` (count x the task's width,
+    /// row-major) become the inputs held over `span` ([`Task::inputs`]: refused before any copy
+    /// moves), the active copies step ([`Steppers::step`]), and every copy writes its state
+    /// row, balance, observation (count x the task's columns), reward and end
+    /// ([`Task::outcome`]); a copy that does not move (one starting anew) earns 0 and does not
+    /// end. `episode`: each copy's steps in its episode, counted here, and the count at which
+    /// an episode is truncated. `batched`: name a refused action by `(copy, component)`.
+    /// Returns how many copies ended (terminated or truncated).
+    #[allow(clippy::too_many_arguments)]
+    pub fn act(&mut self, task: &Task, actions: &[f64], batched: bool, span: f64, active: &[bool], episode: (&mut [u64], Option<u64>), out: Acted<'_>) -> Result<usize> {
+        let (count, n) = (self.len(), self.chain.n());
+        if actions.len() != count * task.width() {
+            return Err(Error::input(format!("actions must have count x {} = {} values, got {}", task.width(), count * task.width(), actions.len())));
+        }
+        let (steps, limit) = episode;
+        if out.obs.len() != count * task.columns.len() || [out.reward.len(), out.terminated.len(), out.truncated.len(), steps.len()] != [count; 4] {
+            return Err(Error::input(format!("the observations, rewards, ends and episode steps must have count x {}, count, count and count values", task.columns.len())));
+        }
+        let mut torques = vec![0.0; count * n];
+        let mut forces = vec![0.0; if self.chain.cart().is_some() { count } else { 0 }];
+        task.inputs(&self.chain, actions, batched, &mut torques, &mut forces)?;
+        self.step(&torques, &forces, span, active, out.states, out.balance)?;
+        self.observe_into(out.states, &task.columns, out.obs)?;
+        task.outcome(&self.chain, out.states, out.reward, out.terminated);
+        let mut ended = 0;
+        for i in 0..count {
+            if active.get(i) == Some(&false) {
+                (out.reward[i], out.terminated[i], out.truncated[i]) = (0.0, false, false);
+                continue;
+            }
+            steps[i] += 1;
+            out.truncated[i] = limit.is_some_and(|l| steps[i] >= l);
+            ended += usize::from(out.terminated[i] || out.truncated[i]);
+        }
+        Ok(ended)
     }
 
     /// Every copy's state (count x [`Steppers::state_len`] values) and its time, energy (lab

@@ -9,6 +9,7 @@ pub mod lanes;
 pub mod live;
 pub mod sensitivity;
 pub mod simulate;
+pub mod task;
 
 pub use driver::{Config, Run, State};
 pub use simulate::{defaults, simulate, simulate_batch, simulate_each, simulate_from, Checkpoint, Checkpoints, Monitor, Settings, Start, Stats, Trajectory};
