@@ -15,6 +15,8 @@ use crate::dynamics::system::NON_FINITE;
 use crate::error::{Error, Result};
 use crate::integrators::lanes::{failed_at, step_cart_pair, Rk4Lanes, Stepped};
 use crate::model::Chain;
+use super::live::observe_on;
+use super::task::Task;
 use crate::par::each_shared;
 use crate::trig::lanes::{Lane, Path, LANES};
 
@@ -155,7 +157,9 @@ impl Bank {
     /// `t_k = k dt` up to `t + span` (as [`super::driver::Run`] counts them); then every copy
     /// writes its state `(theta, omega, [x, v])` and `(t, energy, energy_error)`. The first copy
     /// (by index) that fails names itself; it stays failed until reset.
-    #[allow(clippy::too_many_arguments)]
+    /// `task`: with it, every copy also writes its observation, reward and end ([`Task`]'s, into
+    /// the three slices), each group's in the same parallel pass as its steps.
+    #[allow(clippy::too_many_arguments, clippy::type_complexity)]
     pub fn step(
         &mut self,
         u: &[f64],
@@ -164,9 +168,19 @@ impl Bank {
         active: &[bool],
         states: &mut [f64],
         balance: &mut [f64],
+        task: Option<(&Task, &mut [f64], &mut [f64], &mut [bool])>,
     ) -> Result<()> {
         let (chain, dt, path) = (&self.chain, self.dt, self.path);
         let (n, (row, _)) = (chain.n(), layout(chain));
+        let (task, mut outcomes) = match task {
+            Some((task, obs, reward, ended)) => {
+                let width = task.columns.len();
+                let chunks = obs.chunks_mut(LANES * width).zip(reward.chunks_mut(LANES)).zip(ended.chunks_mut(LANES));
+                (Some(task), chunks.map(|((o, r), e)| Some((o, r, e))).collect())
+            }
+            None => (None, Vec::new()),
+        };
+        outcomes.resize_with(self.groups.len(), || None);
         let mut shares: Vec<Share> = self
             .groups
             .iter_mut()
@@ -174,19 +188,24 @@ impl Bank {
             .zip(u.chunks(LANES * n))
             .zip(states.chunks_mut(LANES * row))
             .zip(balance.chunks_mut(LANES * 3))
+            .zip(outcomes)
             .enumerate()
-            .map(|(gi, ((((g, copies), u), states), balance))| {
+            .map(|(gi, (((((g, copies), u), states), balance), outcome))| {
                 let base = gi * LANES;
                 for j in 0..copies.len() {
                     g.force[j] = forces.get(base + j).copied().unwrap_or(0.0);
                 }
-                Share { g, copies, u, states, balance, base }
+                Share { g, copies, u, states, balance, base, outcome }
             })
             .collect();
         let run = |shares: &mut [Share]| {
             let failed = run_groups(path, chain, dt, shares, span, active);
             for s in shares.iter_mut() {
                 report_on(path, chain, dt, s.g, s.copies, s.states, s.balance);
+                if let (Some(task), Some((obs, reward, ended))) = (task, &mut s.outcome) {
+                    observe_on(s.states, row, &task.columns, obs);
+                    task.outcome(chain, s.states, reward, ended);
+                }
             }
             failed
         };
@@ -293,6 +312,8 @@ struct Share<'a> {
     states: &'a mut [f64],
     balance: &'a mut [f64],
     base: usize,
+    /// The group's observations, rewards and ends, when a task asks for them.
+    outcome: Option<(&'a mut [f64], &'a mut [f64], &'a mut [bool])>,
 }
 
 /// The steps of one group or of two side by side, on the chosen path; the first failed copy

@@ -66,6 +66,18 @@ fn observe(states: &[f64], k: usize, columns: &[Column], out: &mut [f64]) {
     }
 }
 
+/// The observation of state rows of `k` values (checked by the caller), on the best path.
+pub(crate) fn observe_on(states: &[f64], k: usize, columns: &[Column], out: &mut [f64]) {
+    match Path::best() {
+        // SAFETY: `best` is an available path.
+        #[cfg(target_arch = "x86_64")]
+        Path::Avx512 => unsafe { observe_avx512(states, k, columns, out) },
+        #[cfg(target_arch = "x86_64")]
+        Path::Avx2 => unsafe { observe_avx2(states, k, columns, out) },
+        _ => observe(states, k, columns, out),
+    }
+}
+
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,fma")]
 unsafe fn observe_avx512(states: &[f64], k: usize, columns: &[Column], out: &mut [f64]) {
@@ -384,14 +396,7 @@ impl Steppers {
         if let Some(c) = columns.iter().find(|c| c.index() >= k) {
             return Err(Error::input(format!("observation column {c:?} is outside a state row of {k} values")));
         }
-        match Path::best() {
-            // SAFETY: `best` is an available path.
-            #[cfg(target_arch = "x86_64")]
-            Path::Avx512 => unsafe { observe_avx512(states, k, columns, out) },
-            #[cfg(target_arch = "x86_64")]
-            Path::Avx2 => unsafe { observe_avx2(states, k, columns, out) },
-            _ => observe(states, k, columns, out),
-        }
+        observe_on(states, k, columns, out);
         Ok(())
     }
 
@@ -430,30 +435,14 @@ impl Steppers {
     /// fails names itself in the error; it stays failed until reset, the others have taken
     /// their steps.
     pub fn step(&mut self, torques: &[f64], forces: &[f64], span: f64, active: &[bool], states: &mut [f64], balance: &mut [f64]) -> Result<()> {
-        if !(span.is_finite() && span > 0.0) {
-            return Err(Error::input(format!("span must be > 0 and finite, got {span}")));
-        }
-        let (count, n) = (self.len(), self.chain.n());
-        let want_forces = if self.chain.cart().is_some() { count } else { 0 };
-        if torques.len() != count * n {
-            return Err(Error::input(format!("torques must have count x N = {} values, got {}", count * n, torques.len())));
-        }
-        if forces.len() != want_forces {
-            return Err(Error::input(format!("forces must have {want_forces} values (one per copy with a cart), got {}", forces.len())));
-        }
-        if !active.is_empty() && active.len() != count {
-            return Err(Error::input(format!("active must have {count} flags (one per copy) or none, got {}", active.len())));
-        }
-        let k = self.state_len();
-        if states.len() != count * k || balance.len() != count * 3 {
-            return Err(Error::input(format!("the outputs must have count x {k} and count x 3 values")));
-        }
-        check_finite("torques", torques)?;
-        check_finite("forces", forces)?;
+        self.checked_step(torques, forces, span, active, states, balance)?;
         let items = match &mut self.route {
-            Route::Lanes(bank) => return bank.step(torques, forces, span, active, states, balance),
+            Route::Lanes(bank) => return bank.step(torques, forces, span, active, states, balance, None),
             Route::Each(items) => items,
         };
+        let n = self.chain.n();
+        let k = self.chain.state_len();
+        let count = items.len();
         let one = |(i, (((st, u), row), bal)): (usize, (((&mut Stepper<Joint<Builtin>>, &[f64]), &mut [f64]), &mut [f64]))| -> Option<(usize, Error)> {
             if active.get(i) == Some(&false) {
                 st.report(row, bal);
@@ -494,6 +483,30 @@ impl Steppers {
         }
     }
 
+    /// [`Steppers::step`]'s checks of its inputs and outputs.
+    fn checked_step(&self, torques: &[f64], forces: &[f64], span: f64, active: &[bool], states: &[f64], balance: &[f64]) -> Result<()> {
+        if !(span.is_finite() && span > 0.0) {
+            return Err(Error::input(format!("span must be > 0 and finite, got {span}")));
+        }
+        let (count, n) = (self.len(), self.chain.n());
+        let want_forces = if self.chain.cart().is_some() { count } else { 0 };
+        if torques.len() != count * n {
+            return Err(Error::input(format!("torques must have count x N = {} values, got {}", count * n, torques.len())));
+        }
+        if forces.len() != want_forces {
+            return Err(Error::input(format!("forces must have {want_forces} values (one per copy with a cart), got {}", forces.len())));
+        }
+        if !active.is_empty() && active.len() != count {
+            return Err(Error::input(format!("active must have {count} flags (one per copy) or none, got {}", active.len())));
+        }
+        let k = self.state_len();
+        if states.len() != count * k || balance.len() != count * 3 {
+            return Err(Error::input(format!("the outputs must have count x {k} and count x 3 values")));
+        }
+        check_finite("torques", torques)?;
+        check_finite("forces", forces)
+    }
+
     /// One environment step of every copy under `task`: `actions` (count x the task's width,
     /// row-major) become the inputs held over `span` ([`Task::inputs`]: refused before any copy
     /// moves), the active copies step ([`Steppers::step`]), and every copy writes its state
@@ -515,9 +528,15 @@ impl Steppers {
         let mut torques = vec![0.0; count * n];
         let mut forces = vec![0.0; if self.chain.cart().is_some() { count } else { 0 }];
         task.inputs(&self.chain, actions, batched, &mut torques, &mut forces)?;
-        self.step(&torques, &forces, span, active, out.states, out.balance)?;
-        self.observe_into(out.states, &task.columns, out.obs)?;
-        task.outcome(&self.chain, out.states, out.reward, out.terminated);
+        self.checked_step(&torques, &forces, span, active, out.states, out.balance)?;
+        if let Route::Lanes(bank) = &mut self.route {
+            // The observations and outcomes in the same parallel pass, each group's after its steps.
+            bank.step(&torques, &forces, span, active, out.states, out.balance, Some((task, &mut *out.obs, &mut *out.reward, &mut *out.terminated)))?;
+        } else {
+            self.step(&torques, &forces, span, active, out.states, out.balance)?;
+            self.observe_into(out.states, &task.columns, out.obs)?;
+            task.outcome(&self.chain, out.states, out.reward, out.terminated);
+        }
         let mut ended = 0;
         for i in 0..count {
             if active.get(i) == Some(&false) {
@@ -730,13 +749,13 @@ mod tests {
                 }
                 let u: Vec<f64> = (0..40).flat_map(torque).collect();
                 let (mut out, mut bal) = (vec![0.0; 40 * 2 * n], vec![0.0; 40 * 3]);
-                let e = bank.step(&u, &[], 0.2, &[], &mut out, &mut bal).unwrap_err();
+                let e = bank.step(&u, &[], 0.2, &[], &mut out, &mut bal, None).unwrap_err();
                 assert!(matches!(&e, Error::Integration { reason, .. } if reason.starts_with("copy 19: ")), "{e}");
                 for i in (0..40).filter(|&i| i != 19) {
                     let mut alone = Bank::new(&chain, 1, 0.01, path);
                     alone.reset(0, &start(i), &vec![0.0; n], [0.0; 2]);
                     let (mut o, mut b) = (vec![0.0; 2 * n], vec![0.0; 3]);
-                    alone.step(&torque(i), &[], 0.2, &[], &mut o, &mut b).unwrap();
+                    alone.step(&torque(i), &[], 0.2, &[], &mut o, &mut b, None).unwrap();
                     assert_eq!(&out[2 * n * i..2 * n * (i + 1)], &o[..], "copy {i} of {n} links on {}", path.name());
                     assert_eq!(&bal[3 * i..3 * i + 3], &b[..], "copy {i}'s balance");
                 }
@@ -832,7 +851,7 @@ mod tests {
             }
             let (mut out, mut bal) = (vec![0.0; 72], vec![0.0; 27]);
             for _ in 0..50 {
-                bank.step(&[0.1; 36], &[], 0.05, &[], &mut out, &mut bal).unwrap();
+                bank.step(&[0.1; 36], &[], 0.05, &[], &mut out, &mut bal, None).unwrap();
             }
             results.push((path.name(), out));
         }
