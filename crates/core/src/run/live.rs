@@ -517,6 +517,7 @@ impl Steppers {
     /// Returns how many copies ended (terminated or truncated).
     #[allow(clippy::too_many_arguments)]
     pub fn act(&mut self, task: &Task, actions: &[f64], batched: bool, span: f64, active: &[bool], episode: (&mut [u64], Option<u64>), out: Acted<'_>) -> Result<usize> {
+        task.check(&self.chain)?;
         let (count, n) = (self.len(), self.chain.n());
         if actions.len() != count * task.width() {
             return Err(Error::input(format!("actions must have count x {} = {} values, got {}", task.width(), count * task.width(), actions.len())));

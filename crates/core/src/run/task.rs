@@ -59,24 +59,11 @@ fn number(x: f64) -> String {
 impl Task {
     /// A task for copies of `chain`, checked against it.
     pub fn new(chain: &Chain, discrete: bool, targets: Vec<Target>, scale: Vec<f64>, columns: Vec<Column>, goal: Goal) -> Result<Task> {
-        let (n, row) = (chain.n(), chain.state_len());
         if targets.is_empty() || targets.len() != scale.len() {
             return Err(Error::input(format!("a task needs one scale per action component, got {} targets and {} scales", targets.len(), scale.len())));
         }
-        for (a, t) in targets.iter().enumerate() {
-            let ok = match *t {
-                Target::Joint(j) => j < n,
-                Target::Cart => chain.cart().is_some(),
-            };
-            if !ok || targets[..a].contains(t) {
-                return Err(Error::input(format!("action component {a}: {t:?} is not a distinct input of this chain ({n} joints{})", if chain.cart().is_some() { ", a cart" } else { "" })));
-            }
-        }
         if let Some(s) = scale.iter().find(|s| !(s.is_finite() && **s > 0.0)) {
             return Err(Error::input(format!("each action scale must be > 0 and finite, got {s}")));
-        }
-        if let Some(c) = columns.iter().find(|c| c.index() >= row) {
-            return Err(Error::input(format!("observation column {c:?} is outside a state row of {row} values")));
         }
         let limits: &[f64] = match &goal {
             Goal::Height { above } => std::slice::from_ref(above),
@@ -86,10 +73,32 @@ impl Task {
         if limits.iter().any(|v| !(v.is_finite() && *v > 0.0)) {
             return Err(Error::input(format!("the goal's limits must be > 0 and finite, got {goal:?}")));
         }
+        let task = Task { discrete, targets, scale, columns, goal };
+        task.check(chain)?;
+        Ok(task)
+    }
+
+    /// Whether the task fits copies of `chain`: its targets are distinct joints of the chain (or
+    /// its cart), its columns within a state row, its goal one the chain has (a cart for the
+    /// cart-pole's goals).
+    pub fn check(&self, chain: &Chain) -> Result<()> {
+        let (n, row, targets, goal) = (chain.n(), chain.state_len(), &self.targets, self.goal);
+        for (a, t) in targets.iter().enumerate() {
+            let ok = match *t {
+                Target::Joint(j) => j < n,
+                Target::Cart => chain.cart().is_some(),
+            };
+            if !ok || targets[..a].contains(t) {
+                return Err(Error::input(format!("action component {a}: {t:?} is not a distinct input of this chain ({n} joints{})", if chain.cart().is_some() { ", a cart" } else { "" })));
+            }
+        }
+        if let Some(c) = self.columns.iter().find(|c| c.index() >= row) {
+            return Err(Error::input(format!("observation column {c:?} is outside a state row of {row} values")));
+        }
         if !matches!(goal, Goal::Height { .. }) && chain.cart().is_none() {
             return Err(Error::input(format!("{goal:?} needs a chain on a cart")));
         }
-        Ok(Task { discrete, targets, scale, columns, goal })
+        Ok(())
     }
 
     /// Components of one action.
@@ -286,6 +295,18 @@ mod tests {
         ];
         for (i, t) in bad.into_iter().enumerate() {
             assert!(matches!(t, Err(Error::Input(_))), "case {i}: {t:?}");
+        }
+        // A task made for a longer chain, given to steppers of this one: refused, not a panic.
+        let longer = Chain::rods(&[1.0; 3], &[1.0; 3], 9.81).unwrap();
+        let task = Task::new(&longer, false, vec![Target::Joint(2)], vec![1.0], vec![Column::Cos(2)], height).unwrap();
+        let settings = Settings { method: crate::integrators::Method::Rk4, dt: Some(0.01), ..Settings::default() };
+        for route in [None, Some(crate::trig::lanes::Path::best())] {
+            let mut st = Steppers::with_route(&chain, 2, &settings, route).unwrap();
+            let (mut s, mut b, mut o) = (vec![0.0; 8], vec![0.0; 6], vec![0.0; 2]);
+            let (mut r, mut e, mut t) = ([0.0; 2], [false; 2], [false; 2]);
+            let out = Acted { states: &mut s, balance: &mut b, obs: &mut o, reward: &mut r, terminated: &mut e, truncated: &mut t };
+            let got = st.act(&task, &[0.5, 0.5], true, 0.1, &[], (&mut [0, 0], None), out);
+            assert!(matches!(&got, Err(Error::Input(m)) if m.contains("Joint(2) is not a distinct input")), "{got:?}");
         }
     }
 
