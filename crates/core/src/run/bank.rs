@@ -402,17 +402,32 @@ fn run_body<const P: usize>(mut shares: [&mut Share; P], chain: &Chain, dt: f64,
             *first = Some((j, e));
         }
     };
+    // The lanes still stepping (`r < todo`), worked out again only at the rounds where a copy's
+    // steps run out or after a failure: the rounds between take them as they are.
+    let mut going = [[0.0; LANES]; P];
+    let mut fresh_until = 0;
     for r in 0..rounds {
         // A lane whose mass matrix fails stops at its last good state; the step is then taken
         // again by the others (a group that has taken it sits out, all its lanes inactive).
         let mut pending = [true; P];
         loop {
+            if r >= fresh_until {
+                fresh_until = u64::MAX;
+                for p in 0..P {
+                    for j in 0..shares[p].copies.len() {
+                        going[p][j] = if r < todo[p][j] { 1.0 } else { 0.0 };
+                        if todo[p][j] > r {
+                            fresh_until = fresh_until.min(todo[p][j]);
+                        }
+                    }
+                }
+            }
             let mut on = [[0.0; LANES]; P];
             for p in 0..P {
-                for j in 0..shares[p].copies.len() {
-                    on[p][j] = if pending[p] && r < todo[p][j] { 1.0 } else { 0.0 };
+                if pending[p] {
+                    on[p] = going[p];
+                    pending[p] = going[p].iter().any(|&a| a > 0.0);
                 }
-                pending[p] &= on[p].iter().any(|&a| a > 0.0);
             }
             if !pending.iter().any(|&p| p) {
                 break;
@@ -442,11 +457,14 @@ fn run_body<const P: usize>(mut shares: [&mut Share; P], chain: &Chain, dt: f64,
                 let copies = &mut *shares[p].copies;
                 match stepped {
                     Ok(nonfinite) => {
-                        for j in 0..copies.len() {
-                            if nonfinite[j] {
-                                fail(j, (copies[j].steps + r + 1) as f64 * dt, NON_FINITE.to_string(), &mut first_failure[p], copies);
-                                todo[p][j] = r;
+                        if nonfinite.iter().any(|&b| b) {
+                            for j in 0..copies.len() {
+                                if nonfinite[j] {
+                                    fail(j, (copies[j].steps + r + 1) as f64 * dt, NON_FINITE.to_string(), &mut first_failure[p], copies);
+                                    todo[p][j] = r;
+                                }
                             }
+                            fresh_until = 0;
                         }
                         pending[p] = false;
                     }
@@ -458,6 +476,7 @@ fn run_body<const P: usize>(mut shares: [&mut Share; P], chain: &Chain, dt: f64,
                                 todo[p][j] = r;
                             }
                         }
+                        fresh_until = 0;
                     }
                 }
             }
