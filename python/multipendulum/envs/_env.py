@@ -165,6 +165,8 @@ class PendulumVectorEnv(VectorEnv[Any, Any, Any]):
         self._ended = False  # any of _done
         self._none_done = np.zeros(self.num_envs, dtype=np.bool_)
         self._none_done.flags.writeable = False
+        self._every = np.ones(self.num_envs, dtype=np.bool_)  # the info keys' masks after a step
+        self._every.flags.writeable = False
         self._renderer: Optional[Renderer] = None
 
     @property
@@ -214,10 +216,11 @@ class PendulumVectorEnv(VectorEnv[Any, Any, Any]):
     def _infos(self, balance: Array, mask: Optional[npt.NDArray[np.bool_]]) -> Info:
         """Each environment's time, energy and residual, where ``mask`` (None: everywhere)."""
         if mask is None:
-            mask = np.ones(self.num_envs, dtype=np.bool_)
-            columns = balance.T.copy()
-        else:
-            columns = np.where(mask, balance.T, 0.0)
+            columns, mask = balance.T, self._every  # read-only views of the engine's array
+            columns.flags.writeable = False
+            return {"t": columns[0], "_t": mask, "energy": columns[1], "_energy": mask,
+                    "energy_error": columns[2], "_energy_error": mask}
+        columns = np.where(mask, balance.T, 0.0)
         return {"t": columns[0], "_t": mask.copy(), "energy": columns[1], "_energy": mask.copy(),
                 "energy_error": columns[2], "_energy_error": mask.copy()}
 
