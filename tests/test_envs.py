@@ -261,6 +261,22 @@ def test_the_vector_env_equals_gymnasium_sync_vector_env_of_the_single_env(env_i
     assert ends >= num * 3  # the comparison went through several autoresets
 
 
+def test_the_vector_env_s_infos_are_read_only_and_keep_their_values():
+    """A step's infos are the engine's numbers, shared without copies: writing into one is refused
+    (it would change what the renderer draws), and a later step does not change them."""
+    envs_ = gym.make_vec(IDS[0], num_envs=4)
+    envs_.reset(seed=1)
+    info = envs_.step(np.zeros((4, 1)))[4]
+    kept = {k: np.array(v) for k, v in info.items()}
+    for key in ("t", "_t", "energy", "energy_error"):
+        with pytest.raises(ValueError, match="read-only"):
+            info[key][0] = 1.0
+    later = envs_.step(np.ones((4, 1)))[4]
+    assert np.all(later["t"] > info["t"])
+    for k, v in kept.items():
+        np.testing.assert_array_equal(info[k], v)
+
+
 def test_the_vector_env_is_the_same_on_any_number_of_threads():
     code = ("import numpy as np, gymnasium as gym, multipendulum.envs\n"
             "v = gym.make_vec('multipendulum/Acrobot-v0', num_envs=64, n=3)\n"
