@@ -193,9 +193,12 @@ def test_driven_chains_flip_in_lanes_as_on_the_per_trajectory_path(monkeypatch, 
     np.testing.assert_allclose(fast[early], slow[early], rtol=0, atol=1e-9)
 
 
-def test_lanes_give_the_same_bits_on_every_path_and_alone(monkeypatch):
-    chain = chains(4)["rods"]
-    th0 = released(4, 25)
+@pytest.mark.parametrize("n", [3, 4])
+def test_lanes_give_the_same_bits_on_every_path_and_alone(monkeypatch, n):
+    # Rows alone take one group of lanes; many, two groups side by side (for N = 3 in
+    # fixed-size arrays, for N = 4 one after the other): the same bits either way.
+    chain = chains(n)["rods"]
+    th0 = released(n, 25)
     monkeypatch.setenv(SWITCH, "portable")
     ref = mp.flip_times(chain, th0, t_max=6.0)
     assert np.isfinite(ref).any() and np.isinf(ref).any()

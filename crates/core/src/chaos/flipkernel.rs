@@ -31,7 +31,7 @@ use crate::dynamics::{Singular, PIVOT_TOL};
 use crate::error::{Error, Result};
 use crate::dynamics::base::Pivot;
 use crate::dynamics::torque::Timed;
-use crate::integrators::lanes::{failed_at, ChainLanes as Equations, Rk4Lanes};
+use crate::integrators::lanes::{failed_at, step_system_pair, ChainLanes as Equations, Rk4Lanes, Stepped};
 use crate::model::Chain;
 use crate::par::*;
 use crate::dynamics::system::NON_FINITE;
@@ -294,27 +294,36 @@ pub(crate) fn first_flips_double(
     Ok(parts.concat())
 }
 
-/// The lanes of one chunk of an N-link chain's rows: `y = [theta (N), omega (N)]`, each a lane.
+/// One group of lanes of a chunk of an N-link chain's rows: `y = [theta (N), omega (N)]`, each a
+/// lane.
 struct ChainLanes {
     y: Vec<Lane>,
     y0: Vec<Lane>,
     tau: Vec<Lane>,
+    q: Vec<Lane>,
     rk: Rk4Lanes,
     step: [u64; LANES],
     id: [usize; LANES],
     active: Lane,
-    next: usize,
+    /// Lanes holding a row.
+    live: usize,
 }
 
 impl ChainLanes {
-    /// As [`Lanes::load`], for N links: the next row not already flipped into `lane`, or the
-    /// lane idle at rest.
+    fn new(chain: &Chain, m: usize) -> Self {
+        let (n, lanes) = (chain.n(), |k| vec![[0.0; LANES]; k]);
+        ChainLanes { y: lanes(m), y0: lanes(m), tau: lanes(n), q: lanes(n), rk: Rk4Lanes::with_dim(n, m), step: [0; LANES], id: [0; LANES], active: [0.0; LANES], live: 0 }
+    }
+
+    /// As [`Lanes::load`], for N links: the chunk's `next` row not already flipped into `lane`,
+    /// or the lane idle at rest.
     #[inline(always)]
-    fn load(&mut self, lane: usize, theta0: &[f64], omega0: &[f64], links: &[usize], out: &mut [f64]) {
+    fn load(&mut self, lane: usize, next: &mut usize, theta0: &[f64], omega0: &[f64], links: &[usize], out: &mut [f64]) {
         let n = self.tau.len();
-        while self.next < out.len() {
-            let j = self.next;
-            self.next += 1;
+        let was = self.active[lane] > 0.0;
+        while *next < out.len() {
+            let j = *next;
+            *next += 1;
             let (th, om) = (&theta0[n * j..n * (j + 1)], &omega0[n * j..n * (j + 1)]);
             if links.iter().any(|&k| th[k].abs() >= PI) {
                 out[j] = 0.0;
@@ -328,20 +337,73 @@ impl ChainLanes {
                 m[lane] = 0.0;
             }
             (self.step[lane], self.id[lane], self.active[lane]) = (0, j, 1.0);
+            self.live += usize::from(!was);
             return;
         }
         for m in self.y.iter_mut() {
             m[lane] = 0.0;
         }
         self.active[lane] = 0.0;
+        self.live -= usize::from(was);
+    }
+
+    /// After a step of this group (`stepped`, from `y0` to `y`): its failure as an error, and
+    /// each lane whose row flipped or ran its `steps` out written to `out` and loaded anew.
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    fn settle(&mut self, stepped: Stepped, steps: u64, dt: f64, links: &[usize], next: &mut usize, theta0: &[f64], omega0: &[f64], out: &mut [f64]) -> Result<()> {
+        let n = self.tau.len();
+        let nonfinite = match stepped {
+            Ok(nonfinite) => nonfinite,
+            Err((stage, bad)) => {
+                let i = (0..LANES).find(|&i| bad.lanes[i]).unwrap_or(0);
+                let t = failed_at(&bad, i, stage, self.step[i] as f64 * dt, dt);
+                return Err(Error::integration(t, bad.reason(i)));
+            }
+        };
+        if let Some(i) = (0..LANES).find(|&i| nonfinite[i]) {
+            return Err(Error::integration((self.step[i] + 1) as f64 * dt, NON_FINITE));
+        }
+        let mut event = false;
+        for i in 0..LANES {
+            self.step[i] += 1;
+            let mut flip = false;
+            for &k in links {
+                flip |= self.y[k][i].abs() >= PI;
+            }
+            event |= (self.active[i] > 0.0) & (flip | (self.step[i] >= steps));
+        }
+        if !event {
+            return Ok(());
+        }
+        for i in 0..LANES {
+            if !(self.active[i] > 0.0) {
+                continue;
+            }
+            let t = (self.step[i] - 1) as f64 * dt;
+            if let Some(&k) = links.iter().find(|&&k| self.y[k][i].abs() >= PI) {
+                // On the step's cubic Hermite interpolant (theta' = omega), as the scalar path.
+                out[self.id[i]] = flip_time(t, dt, (self.y0[k][i], self.y0[n + k][i]), (self.y[k][i], self.y[n + k][i]));
+            } else if self.step[i] >= steps {
+                out[self.id[i]] = f64::INFINITY;
+            } else {
+                continue;
+            }
+            self.load(i, next, theta0, omega0, links, out);
+        }
+        Ok(())
     }
 }
 
 /// [`run_chunk`] for a chain of any N (losses and a cart included), undriven or under `drive`'s
 /// torques of time (each lane at its own trajectory's time), stepped by [`Rk4Lanes`]: `out[j]` for the
 /// rows `theta0[N j..N (j + 1)]`, `omega0[..]`; `links` the links whose flip counts, in order
-/// (the first one over the top is the one timed, as on the scalar path).
+/// (the first one over the top is the one timed, as on the scalar path). Two groups of lanes
+/// take the chunk's rows in turn and step side by side ([`step_system_pair`]: for the double and
+/// triple pendulum, the one group's arithmetic fills the wait on the other's divisions and
+/// `sin`/`cos`); each row's lane takes the same operations in either group, so the same bits.
 #[inline(always)]
+#[allow(clippy::too_many_arguments)]
 fn run_chunk_chain(
     chain: &Chain,
     theta0: &[f64],
@@ -353,74 +415,39 @@ fn run_chunk_chain(
     stop: &Watch,
     out: &mut [f64],
 ) -> Result<()> {
-    let n = chain.n();
-    let lanes = |k| vec![[0.0; LANES]; k];
     // A chain on a cart carries the cart's x and v after its angles and rates; a driven one, its
     // torques' work (for the lanes' layout; not reported).
     let m = chain.state_len() + usize::from(drive.is_some());
-    let mut q = lanes(n);
-    let mut s = ChainLanes {
-        y: lanes(m),
-        y0: lanes(m),
-        tau: lanes(n),
-        rk: Rk4Lanes::with_dim(n, m),
-        step: [0; LANES],
-        id: [0; LANES],
-        active: [0.0; LANES],
-        next: 0,
-    };
-    let mut live = 0;
+    let mut g = [ChainLanes::new(chain, m), ChainLanes::new(chain, m)];
+    let mut next = 0;
     for lane in 0..LANES {
-        s.load(lane, theta0, omega0, links, out);
-        live += usize::from(s.active[lane] > 0.0);
+        for s in g.iter_mut() {
+            s.load(lane, &mut next, theta0, omega0, links, out);
+        }
     }
-    while live > 0 {
-        // Every round: a relaxed load against eight lanes' step of N links (so Ctrl-C is heard
+    while g[0].live + g[1].live > 0 {
+        // Every round: a relaxed load against sixteen lanes' step of N links (so Ctrl-C is heard
         // at once on chains of thousands of links too).
-        stop.check(s.step[0] as f64 * dt)?;
-        s.y0.copy_from_slice(&s.y);
+        stop.check(g[0].step[0].max(g[1].step[0]) as f64 * dt)?;
+        let [a, b] = &mut g;
+        for s in [&mut *a, &mut *b] {
+            s.y0.copy_from_slice(&s.y);
+        }
         // Each lane at its own trajectory's time (for a drive).
-        let t = each(|i| s.step[i] as f64 * dt);
-        let mut sys = Equations { chain, tau: &s.tau, drive, force: &[0.0; LANES], pivot, pivot_work: false, q: &mut q };
-        let stepped = s.rk.step_system_at(&mut s.y, &t, dt, &s.active, &mut sys);
-        let nonfinite = match stepped {
-            Ok(nonfinite) => nonfinite,
-            Err((stage, bad)) => {
-                let i = (0..LANES).find(|&i| bad.lanes[i]).unwrap_or(0);
-                let t = failed_at(&bad, i, stage, s.step[i] as f64 * dt, dt);
-                return Err(Error::integration(t, bad.reason(i)));
+        let (ta, tb) = (each(|i| a.step[i] as f64 * dt), each(|i| b.step[i] as f64 * dt));
+        let stepped = {
+            let sys = |tau, q| Equations { chain, tau, drive, force: &[0.0; LANES], pivot, pivot_work: false, q };
+            let (mut sa, mut sb) = (sys(&a.tau, &mut a.q), sys(&b.tau, &mut b.q));
+            match (a.live > 0, b.live > 0) {
+                (true, true) => step_system_pair([&mut a.rk, &mut b.rk], [&mut a.y, &mut b.y], [&ta, &tb], dt, [&a.active, &b.active], [&mut sa, &mut sb]).map(Some),
+                (true, false) => [Some(a.rk.step_system_at(&mut a.y, &ta, dt, &a.active, &mut sa)), None],
+                _ => [None, Some(b.rk.step_system_at(&mut b.y, &tb, dt, &b.active, &mut sb))],
             }
         };
-        if let Some(i) = (0..LANES).find(|&i| nonfinite[i]) {
-            return Err(Error::integration((s.step[i] + 1) as f64 * dt, NON_FINITE));
-        }
-        let mut event = false;
-        for i in 0..LANES {
-            s.step[i] += 1;
-            let mut flip = false;
-            for &k in links {
-                flip |= s.y[k][i].abs() >= PI;
+        for (s, stepped) in [a, b].into_iter().zip(stepped) {
+            if let Some(stepped) = stepped {
+                s.settle(stepped, steps, dt, links, &mut next, theta0, omega0, out)?;
             }
-            event |= (s.active[i] > 0.0) & (flip | (s.step[i] >= steps));
-        }
-        if !event {
-            continue;
-        }
-        for i in 0..LANES {
-            if !(s.active[i] > 0.0) {
-                continue;
-            }
-            let t = (s.step[i] - 1) as f64 * dt;
-            if let Some(&k) = links.iter().find(|&&k| s.y[k][i].abs() >= PI) {
-                // On the step's cubic Hermite interpolant (theta' = omega), as the scalar path.
-                out[s.id[i]] = flip_time(t, dt, (s.y0[k][i], s.y0[n + k][i]), (s.y[k][i], s.y[n + k][i]));
-            } else if s.step[i] >= steps {
-                out[s.id[i]] = f64::INFINITY;
-            } else {
-                continue;
-            }
-            s.load(i, theta0, omega0, links, out);
-            live -= usize::from(!(s.active[i] > 0.0));
         }
     }
     Ok(())

@@ -311,15 +311,30 @@ pub fn step_cart_pair(
     let (mut qa, mut qb) = (std::mem::take(&mut a.q), std::mem::take(&mut b.q));
     let sys = |tau, force, q| ChainLanes { chain, tau, drive: None, force, pivot: None, pivot_work: false, q };
     let (mut sa, mut sb) = (sys(tau[0], force[0], &mut qa), sys(tau[1], force[1], &mut qb));
-    let [ya, yb] = y;
     let t = &[0.0; LANES];
-    let out = match ya.len() {
-        4 => fixed::<4, 2, _>([ya, yb], [t, t], dt, active, [&mut sa, &mut sb], [&mut a.scratch, &mut b.scratch]),
-        6 => fixed::<6, 2, _>([ya, yb], [t, t], dt, active, [&mut sa, &mut sb], [&mut a.scratch, &mut b.scratch]),
-        _ => [a.step_system_at(ya, t, dt, active[0], &mut sa), b.step_system_at(yb, t, dt, active[1], &mut sb)],
-    };
+    let out = step_system_pair([&mut *a, &mut *b], y, [t, t], dt, active, [&mut sa, &mut sb]);
     (a.q, b.q) = (qa, qb);
     out
+}
+
+/// [`Rk4Lanes::step_system_at`] of two groups of lanes of one kind of system side by side (as
+/// [`step_cart_pair`]): systems of four or six lanes in fixed-size arrays, each group's lanes
+/// taking the same operations as alone (the same bits); larger ones one group after the other.
+#[inline(always)]
+pub fn step_system_pair<S: LaneSystem>(
+    rk: [&mut Rk4Lanes; 2],
+    y: [&mut [Lane]; 2],
+    t: [&Lane; 2],
+    dt: f64,
+    active: [&Lane; 2],
+    sys: [&mut S; 2],
+) -> [Stepped; 2] {
+    let ([a, b], [ya, yb], [sa, sb]) = (rk, y, sys);
+    match ya.len() {
+        4 => fixed::<4, 2, _>([ya, yb], t, dt, active, [sa, sb], [&mut a.scratch, &mut b.scratch]),
+        6 => fixed::<6, 2, _>([ya, yb], t, dt, active, [sa, sb], [&mut a.scratch, &mut b.scratch]),
+        _ => [a.step_system_at(ya, t[0], dt, active[0], sa), b.step_system_at(yb, t[1], dt, active[1], sb)],
+    }
 }
 
 /// [`Rk4Lanes::step_system_at`] of `P` groups of a system of `M` lanes, side by side, their
