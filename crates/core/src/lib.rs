@@ -11,6 +11,9 @@
 //!   frame-by-frame stepper), the energy error;
 //! - [`chaos`]: Lyapunov exponents, flip times and the flip-map kernel;
 //! - [`facts`]: what the bindings publish about the core (methods, defaults, limits).
+// The crate's documentation is for its developers (`cargo doc --document-private-items`, as
+// `make lint` builds it): its links to private items are meant, and resolve there.
+#![allow(rustdoc::private_intra_doc_links)]
 pub mod chaos;
 pub mod dynamics;
 pub mod error;

@@ -24,7 +24,7 @@ pub struct Chain {
     /// `A_ii = I_i + m_i c_i^2 + l_i^2 sum_{k>i} m_k`.
     pub(crate) diag: Vec<f64>,
     /// Losses at the joints: viscous damping and regularised Coulomb friction
-    /// ([`crate::dynamics::losses`]); all zero for the seeds' ideal chain.
+    /// ([`Chain::add_losses`]); all zero for the seeds' ideal chain.
     pub(crate) joints: Joints,
     /// The base slides along x as a degree of freedom when there is a cart.
     pub(crate) cart: Option<Cart>,

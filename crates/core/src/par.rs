@@ -66,7 +66,7 @@ pub(crate) fn each_shared<T: Send, R: Send>(items: Vec<T>, f: impl Fn(T) -> R + 
 /// in between takes about as long to wake (more in a virtual machine, where its idle CPU halts),
 /// so the call's first items would run on the calling thread alone. Each call ends by giving
 /// `helpers` pool threads a job that waits (a `spin_loop`, light on a hyperthread's sibling)
-/// until the next call begins or [`LINGER`] has passed, whichever comes first; the next call's
+/// until the next call begins or [`LINGER`](linger::LINGER) has passed, whichever comes first; the next call's
 /// items then find those threads awake. Nothing is computed there, so results are unchanged.
 #[cfg(feature = "parallel")]
 mod linger {

@@ -3,7 +3,7 @@
 use std::cell::RefCell;
 
 use multipendulum_core as core;
-use numpy::{PyArray1, PyReadonlyArray1};
+use numpy::PyReadonlyArray1;
 use pyo3::prelude::*;
 
 use core::dynamics::rows;
@@ -12,7 +12,7 @@ use core::Chain as CoreChain;
 
 use crate::base::{self as base, Errors, PyAxis, PyCartForce};
 use crate::torque::{torque_error, PyTorque};
-use crate::{slice, to_py, vec_out};
+use crate::{slice, to_py, vec_out, Array};
 
 /// A pivot as two axes `(x, y)`.
 type Axes<'py> = Option<(PyRef<'py, PyAxis>, PyRef<'py, PyAxis>)>;
@@ -58,6 +58,7 @@ impl PyChain {
 
     #[staticmethod]
     #[pyo3(signature = (lengths, masses, g=9.81, *, damping=None, friction=None, friction_velocity=core::model::FRICTION_VELOCITY, cart=None))]
+    #[allow(clippy::too_many_arguments)]
     fn rods(
         py: Python<'_>,
         lengths: Vec<f64>,
@@ -73,11 +74,11 @@ impl PyChain {
     }
 
     #[getter]
-    fn damping<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+    fn damping<'py>(&self, py: Python<'py>) -> Array<'py> {
         vec_out(py, self.inner.joints().damping.clone())
     }
     #[getter]
-    fn friction<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+    fn friction<'py>(&self, py: Python<'py>) -> Array<'py> {
         vec_out(py, self.inner.joints().friction.clone())
     }
     #[getter]
@@ -100,19 +101,19 @@ impl PyChain {
         self.inner.n()
     }
     #[getter]
-    fn lengths<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+    fn lengths<'py>(&self, py: Python<'py>) -> Array<'py> {
         vec_out(py, self.inner.lengths().to_vec())
     }
     #[getter]
-    fn masses<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+    fn masses<'py>(&self, py: Python<'py>) -> Array<'py> {
         vec_out(py, self.inner.masses().to_vec())
     }
     #[getter]
-    fn com<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+    fn com<'py>(&self, py: Python<'py>) -> Array<'py> {
         vec_out(py, self.inner.com().to_vec())
     }
     #[getter]
-    fn inertia<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+    fn inertia<'py>(&self, py: Python<'py>) -> Array<'py> {
         vec_out(py, self.inner.inertia().to_vec())
     }
     #[getter]
@@ -121,7 +122,7 @@ impl PyChain {
     }
 
     /// Rows of flat `theta` -> rows of row-major N x N mass matrices.
-    fn mass_matrix<'py>(&self, py: Python<'py>, theta: PyReadonlyArray1<'py, f64>) -> PyResult<Bound<'py, PyArray1<f64>>> {
+    fn mass_matrix<'py>(&self, py: Python<'py>, theta: PyReadonlyArray1<'py, f64>) -> PyResult<Array<'py>> {
         let out = rows::mass_matrices(&self.inner, slice("theta", &theta)?).map_err(|e| to_py(py, e))?;
         Ok(vec_out(py, out))
     }
@@ -142,7 +143,7 @@ impl PyChain {
         pivot: Axes<'py>,
         cart_v: Option<Vec<f64>>,
         cart_force: Option<PyRef<'py, PyCartForce>>,
-    ) -> PyResult<Bound<'py, PyArray1<f64>>> {
+    ) -> PyResult<Array<'py>> {
         let (theta, omega) = (slice("theta", &theta)?, slice("omega", &omega)?);
         let algorithm = Algorithm::parse(algorithm).map_err(|e| to_py(py, e))?;
         let slot = RefCell::new(None);
@@ -182,7 +183,7 @@ impl PyChain {
         pivot: Axes<'py>,
         cart_v: f64,
         cart_force: Option<PyRef<'py, PyCartForce>>,
-    ) -> PyResult<Bound<'py, PyArray1<f64>>> {
+    ) -> PyResult<Array<'py>> {
         let slot = RefCell::new(None);
         let errors = Errors::default();
         let mut src = crate::torque::torque(py, self.inner.n(), torque.as_deref(), &slot)?;
@@ -208,7 +209,7 @@ impl PyChain {
         t: f64,
         torque: Option<PyRef<'py, PyTorque>>,
         pivot: Axes<'py>,
-    ) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>)> {
+    ) -> PyResult<(Array<'py>, Array<'py>)> {
         let slot = RefCell::new(None);
         let errors = Errors::default();
         let mut src = crate::torque::torque(py, self.inner.n(), torque.as_deref(), &slot)?;
@@ -221,7 +222,7 @@ impl PyChain {
     /// The momenta of each row; with a cart `N + 1` per row, `p_x` first (`cart_v`: the cart's
     /// velocity, one value or one per row).
     #[pyo3(signature = (theta, omega, *, cart_v=None))]
-    fn momenta<'py>(&self, py: Python<'py>, theta: PyReadonlyArray1<'py, f64>, omega: PyReadonlyArray1<'py, f64>, cart_v: Option<Vec<f64>>) -> PyResult<Bound<'py, PyArray1<f64>>> {
+    fn momenta<'py>(&self, py: Python<'py>, theta: PyReadonlyArray1<'py, f64>, omega: PyReadonlyArray1<'py, f64>, cart_v: Option<Vec<f64>>) -> PyResult<Array<'py>> {
         let (theta, omega) = (slice("theta", &theta)?, slice("omega", &omega)?);
         let out = match cart_v {
             None if self.inner.cart().is_none() => rows::momenta(&self.inner, theta, omega),
@@ -235,7 +236,7 @@ impl PyChain {
 
     /// The velocities of each row; with a cart, `p` and the result have `N + 1` per row, the
     /// cart's first.
-    fn velocities<'py>(&self, py: Python<'py>, theta: PyReadonlyArray1<'py, f64>, p: PyReadonlyArray1<'py, f64>) -> PyResult<Bound<'py, PyArray1<f64>>> {
+    fn velocities<'py>(&self, py: Python<'py>, theta: PyReadonlyArray1<'py, f64>, p: PyReadonlyArray1<'py, f64>) -> PyResult<Array<'py>> {
         let (theta, p) = (slice("theta", &theta)?, slice("p", &p)?);
         let out = if self.inner.cart().is_none() { rows::velocities(&self.inner, theta, p) } else { rows::velocities_general(&self.inner, theta, p) };
         Ok(vec_out(py, out.map_err(|e| to_py(py, e))?))
@@ -252,7 +253,7 @@ impl PyChain {
         t: f64,
         pivot: Axes<'py>,
         cart_v: Option<Vec<f64>>,
-    ) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>)> {
+    ) -> PyResult<(Array<'py>, Array<'py>)> {
         let (theta, omega) = (slice("theta", &theta)?, slice("omega", &omega)?);
         let errors = Errors::default();
         let pivot = base::pivot(py, pivot, &errors)?;
@@ -268,7 +269,7 @@ impl PyChain {
 
     /// Joint positions (`com=False`) or centres of mass (`com=True`), 2N numbers per row.
     #[pyo3(signature = (theta, *, com=false))]
-    fn positions<'py>(&self, py: Python<'py>, theta: PyReadonlyArray1<'py, f64>, com: bool) -> PyResult<Bound<'py, PyArray1<f64>>> {
+    fn positions<'py>(&self, py: Python<'py>, theta: PyReadonlyArray1<'py, f64>, com: bool) -> PyResult<Array<'py>> {
         let out = rows::positions(&self.inner, slice("theta", &theta)?, com).map_err(|e| to_py(py, e))?;
         Ok(vec_out(py, out))
     }

@@ -9,7 +9,7 @@ use core::Watch;
 use crate::base::{take, Errors, PyAxis, PyCartForce};
 use crate::chain::PyChain;
 use crate::torque::{builtin_only, timed, PyTorque};
-use crate::{interruptible, slice, to_py, vec_out};
+use crate::{interruptible, slice, to_py, vec_out, Array};
 
 pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(lyapunov, m)?)?;
@@ -50,7 +50,7 @@ fn indicator<'py>(
     deviations: Option<Vec<f64>>,
     record_every: u64,
     progress: Option<Py<PyAny>>,
-) -> PyResult<(f64, Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>)> {
+) -> PyResult<(f64, Array<'py>, Array<'py>)> {
     use core::chaos::indicators::{indicator, Indicator};
     let c = &chain.inner;
     let which = Indicator::parse(name, k).map_err(|e| to_py(py, e))?;
@@ -82,7 +82,7 @@ fn indicators<'py>(
     pivot: Option<(PyRef<'py, PyAxis>, PyRef<'py, PyAxis>)>,
     deviations: Option<Vec<f64>>,
     progress: Option<Py<PyAny>>,
-) -> PyResult<Bound<'py, PyArray1<f64>>> {
+) -> PyResult<Array<'py>> {
     use core::chaos::indicators::{indicators, Indicator};
     let c = &chain.inner;
     let which = Indicator::parse(name, k).map_err(|e| to_py(py, e))?;
@@ -118,7 +118,7 @@ fn certified_indicators<'py>(
     deviations: Option<Vec<f64>>,
     threshold: Option<f64>,
     progress: Option<Py<PyAny>>,
-) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<bool>>, f64)> {
+) -> PyResult<(Array<'py>, Array<'py, bool>, f64)> {
     use core::chaos::indicators::{certified_indicators, Indicator};
     let c = &chain.inner;
     let which = Indicator::parse(name, k).map_err(|e| to_py(py, e))?;
@@ -153,7 +153,7 @@ fn lyapunov<'py>(
     cart_force: Option<PyRef<'py, PyCartForce>>,
     cart0: (f64, f64),
     progress: Option<Py<PyAny>>,
-) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>)> {
+) -> PyResult<(Array<'py>, Array<'py>, Array<'py>)> {
     let c = &chain.inner;
     let torque = builtin_only(py, c.n(), torque.as_deref(), "lyapunov")?;
     let errors: Errors = Default::default();
@@ -182,7 +182,7 @@ fn first_flips<'py>(
     torque: Option<PyRef<'py, PyTorque>>,
     pivot: Option<(PyRef<'py, PyAxis>, PyRef<'py, PyAxis>)>,
     progress: Option<Py<PyAny>>,
-) -> PyResult<Bound<'py, PyArray1<f64>>> {
+) -> PyResult<Array<'py>> {
     let c = &chain.inner;
     let torque = builtin_only(py, c.n(), torque.as_deref(), "flip maps")?;
     let errors: Errors = Default::default();
@@ -214,7 +214,7 @@ fn certified_flips<'py>(
     pivot: Option<(PyRef<'py, PyAxis>, PyRef<'py, PyAxis>)>,
     tolerance: Option<f64>,
     progress: Option<Py<PyAny>>,
-) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<bool>>, f64)> {
+) -> PyResult<(Array<'py>, Array<'py, bool>, f64)> {
     let c = &chain.inner;
     let torque = builtin_only(py, c.n(), torque.as_deref(), "flip maps")?;
     let errors: Errors = Default::default();
@@ -230,12 +230,12 @@ fn certified_flips<'py>(
 
 /// The arrays of an ensemble.
 type EnsembleOut<'py> = (
-    Bound<'py, PyArray1<f64>>,
-    Bound<'py, PyArray1<f64>>,
-    Bound<'py, PyArray1<f64>>,
-    Bound<'py, PyArray1<f64>>,
-    Bound<'py, PyArray1<u64>>,
-    Bound<'py, PyArray1<f64>>,
+    Array<'py>,
+    Array<'py>,
+    Array<'py>,
+    Array<'py>,
+    Array<'py, u64>,
+    Array<'py>,
 );
 
 /// An ensemble in SIMD lanes (`core::chaos::ensemble`): `(theta, omega, p, energy_error, steps,

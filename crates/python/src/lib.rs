@@ -11,6 +11,9 @@
 //! into NumPy without copying. The GIL is released while Rust integrates, except when a Python
 //! function (a torque, an event) must be called back; long work runs under [`interruptible`],
 //! so Ctrl-C reaches it.
+// The crate's documentation is for its developers (`cargo doc --document-private-items`, as
+// `make lint` builds it): its links to private items are meant, and resolve there.
+#![allow(rustdoc::private_intra_doc_links)]
 use std::time::Duration;
 
 use multipendulum_core as core;
@@ -45,6 +48,9 @@ pub(crate) fn to_py(py: Python<'_>, e: Error) -> PyErr {
         }
     }
 }
+
+/// A one-dimensional NumPy array handed to Python (the results, moved in without copying).
+pub(crate) type Array<'py, T = f64> = Bound<'py, PyArray1<T>>;
 
 pub(crate) fn slice<'a>(name: &str, a: &'a PyReadonlyArray1<'_, f64>) -> PyResult<&'a [f64]> {
     a.as_slice().map_err(|_| InputError::new_err(format!("{name} must be a C-contiguous float64 array")))

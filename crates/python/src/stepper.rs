@@ -8,7 +8,7 @@ use pyo3::prelude::*;
 use core::{Form, Method, Settings};
 
 use crate::chain::PyChain;
-use crate::{slice, to_py, InputError};
+use crate::{slice, to_py, Array, InputError};
 
 pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PySteppers>()?;
@@ -112,7 +112,7 @@ impl PySteppers {
         self.inner.len()
     }
 
-    /// The route the copies take: "each" (a stepper per copy) or "lanes:<path>" (SIMD lanes).
+    /// The route the copies take: `"each"` (a stepper per copy) or `"lanes:<path>"` (SIMD lanes).
     #[getter]
     fn route(&self) -> String {
         self.inner.route()
@@ -174,7 +174,7 @@ impl PySteppers {
         forces: PyReadonlyArray1<'_, f64>,
         span: f64,
         active: Option<PyReadonlyArray1<'_, bool>>,
-    ) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>)> {
+    ) -> PyResult<(Array<'py>, Array<'py>)> {
         let (torques, forces) = (slice("torques", &torques)?, slice("forces", &forces)?);
         let active = match &active {
             Some(a) => a.as_slice().map_err(|_| InputError::new_err("active must be a C-contiguous bool array"))?,
@@ -190,7 +190,7 @@ impl PySteppers {
     /// An observation of every copy from `states` (count x state_len, flat, as `step` returns
     /// them): `columns` flat pairs `(kind, index)`, kind 0 the row's value at `index`, 1 its
     /// cosine, 2 its sine. Returns count x (number of pairs) values, flat.
-    fn observe<'py>(&self, py: Python<'py>, states: PyReadonlyArray1<'_, f64>, columns: PyReadonlyArray1<'_, i64>) -> PyResult<Bound<'py, PyArray1<f64>>> {
+    fn observe<'py>(&self, py: Python<'py>, states: PyReadonlyArray1<'_, f64>, columns: PyReadonlyArray1<'_, i64>) -> PyResult<Array<'py>> {
         let states = slice("states", &states)?;
         let columns = columns_of(&columns)?;
         let mut out = vec![0.0; self.inner.len() * columns.len()];
@@ -219,7 +219,7 @@ impl PySteppers {
         mut steps: PyReadwriteArray1<'_, u64>,
         limit: Option<u64>,
         active: Option<PyReadonlyArray1<'_, bool>>,
-    ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<bool>>, Bound<'py, PyArray1<bool>>, usize)> {
+    ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>, Array<'py>, Array<'py, bool>, Array<'py, bool>, usize)> {
         let actions = slice("actions", &actions)?;
         let active = match &active {
             Some(a) => a.as_slice().map_err(|_| InputError::new_err("active must be a C-contiguous bool array"))?,
@@ -246,7 +246,7 @@ impl PySteppers {
 
     /// Every copy's state (count x state_len, flat) and its time, energy (lab frame) and
     /// energy-balance residual (count x 3, flat), as `step` returns them.
-    fn report<'py>(&mut self, py: Python<'py>) -> (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>) {
+    fn report<'py>(&mut self, py: Python<'py>) -> (Array<'py>, Array<'py>) {
         let count = self.inner.len();
         let (mut states, mut balance) = (vec![0.0; count * self.inner.state_len()], vec![0.0; count * 3]);
         self.inner.report_into(&mut states, &mut balance);

@@ -18,6 +18,9 @@
 //!   `mp_error_len` give the core's message (`lengths[1] must be > 0 and finite, got -1`).
 //!
 //! Pointers and lengths come from the wrapper, which allocates every buffer it passes.
+// The crate's documentation is for its developers (`cargo doc --document-private-items`, as
+// `make lint` builds it): its links to private items are meant, and resolve there.
+#![allow(rustdoc::private_intra_doc_links)]
 use std::alloc::{alloc_zeroed, dealloc, Layout};
 use std::cell::RefCell;
 use std::sync::Arc;

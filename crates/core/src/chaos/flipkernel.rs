@@ -184,6 +184,7 @@ impl Lanes {
 /// The run of one chunk: `out[j]` for the rows `theta0[2j..2j+2]`, `omega0[2j..2j+2]`.
 /// `links[k]`: whether link `k` counts as a flip.
 #[inline(always)]
+#[allow(clippy::too_many_arguments)]
 fn run_chunk(c: &Coef, theta0: &[f64], omega0: &[f64], steps: u64, dt: f64, links: [bool; 2], stop: &Watch, out: &mut [f64]) -> Result<()> {
     let mut lanes = Lanes { y: [[0.0; W]; 4], step: [0; W], id: [0; W], active: [false; W], next: 0 };
     let mut det = [0.0; W];
@@ -241,16 +242,19 @@ fn run_chunk(c: &Coef, theta0: &[f64], omega0: &[f64], steps: u64, dt: f64, link
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,fma")]
+#[allow(clippy::too_many_arguments)]
 unsafe fn run_chunk_avx512(c: &Coef, th: &[f64], om: &[f64], steps: u64, dt: f64, links: [bool; 2], stop: &Watch, out: &mut [f64]) -> Result<()> {
     run_chunk(c, th, om, steps, dt, links, stop, out)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
+#[allow(clippy::too_many_arguments)]
 unsafe fn run_chunk_avx2(c: &Coef, th: &[f64], om: &[f64], steps: u64, dt: f64, links: [bool; 2], stop: &Watch, out: &mut [f64]) -> Result<()> {
     run_chunk(c, th, om, steps, dt, links, stop, out)
 }
 
+#[allow(clippy::too_many_arguments)]
 fn run_chunk_on(path: Path, c: &Coef, th: &[f64], om: &[f64], steps: u64, dt: f64, links: [bool; 2], stop: &Watch, out: &mut [f64]) -> Result<()> {
     assert!(path.available(), "the {} kernel needs a CPU feature this one lacks", path.name());
     match path {

@@ -788,9 +788,9 @@ impl Columns {
     /// - Lagrangian: `M d omega_dot = r`, `r_1 = G_1 d theta_1 - k (c_12 w_2^2 d_12 + s_12 (2 w_2
     ///   d w_2 - a_2 d_12))`, `r_2 = G_2 d theta_2 + k (c_12 w_1^2 d_12 + s_12 (2 w_1 d w_1 + a_1
     ///   d_12))`;
-    /// - Hamiltonian: `M d omega = d p + k s_12 d_12 (w_2, w_1)`, then `d p_dot_1 = G_1 d theta_1
-    ///   - q`, `d p_dot_2 = G_2 d theta_2 + q`, `q = k (c_12 d_12 w_1 w_2 + s_12 (d w_1 w_2 + w_1
-    ///   d w_2))`;
+    /// - Hamiltonian: `M d omega = d p + k s_12 d_12 (w_2, w_1)`, then
+    ///   `d p_dot_1 = G_1 d theta_1 - q`, `d p_dot_2 = G_2 d theta_2 + q`,
+    ///   `q = k (c_12 d_12 w_1 w_2 + s_12 (d w_1 w_2 + w_1 d w_2))`;
     ///
     /// then the losses' terms and the forcings ([`Chain::lagrangian_forcing`]'s and
     /// [`Chain::hamiltonian_forcing`]'s, written out: a link parameter's through the derivatives

@@ -215,7 +215,7 @@ impl AnyIntegrator {
 }
 
 /// The method chosen at run time: each call dispatches to the monomorphised integrator. Hot
-/// loops take the integrator's own type instead ([`crate::run::simulate`] does).
+/// loops take the integrator's own type instead ([`crate::run::simulate`](fn@crate::run::simulate) does).
 impl Integrator for AnyIntegrator {
     type Memory = AnyMemory;
 

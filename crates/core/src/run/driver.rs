@@ -1,5 +1,5 @@
 //! The run driver: one type ([`Run`]) that owns a system's state, its integrator and its
-//! counters, and advances them. Every caller goes through it: [`super::simulate`] (and so
+//! counters, and advances them. Every caller goes through it: [`super::simulate`](fn@super::simulate) (and so
 //! batches, `t_eval` output, events and checkpoints) step by step, the viewer and the
 //! environments frame by frame ([`Run::advance_to`]), with new inputs between steps.
 //!

@@ -310,10 +310,17 @@ pub struct Steppers {
     settings: Settings,
 }
 
+// One per `Steppers`, made once and never moved while stepping: the size of the lanes' bank
+// beside a `Vec` costs nothing, where a `Box` would add a pointer to follow on every step.
+#[allow(clippy::large_enum_variant)]
 enum Route {
     Each(Vec<Stepper<Joint<Builtin>>>),
     Lanes(Bank),
 }
+
+/// One copy's part of a step, as [`Steppers::step`] hands it out: its index, its stepper, its
+/// held torques, its state's row and its balance's.
+type Part<'a> = (usize, (((&'a mut Stepper<Joint<Builtin>>, &'a [f64]), &'a mut [f64]), &'a mut [f64]));
 
 impl Steppers {
     /// `count` copies of `chain`, hanging at rest until [`Steppers::reset`]. `settings` as for
@@ -443,7 +450,7 @@ impl Steppers {
         let n = self.chain.n();
         let k = self.chain.state_len();
         let count = items.len();
-        let one = |(i, (((st, u), row), bal)): (usize, (((&mut Stepper<Joint<Builtin>>, &[f64]), &mut [f64]), &mut [f64]))| -> Option<(usize, Error)> {
+        let one = |(i, (((st, u), row), bal)): Part<'_>| -> Option<(usize, Error)> {
             if active.get(i) == Some(&false) {
                 st.report(row, bal);
                 return None;

@@ -1,5 +1,5 @@
 //! Runs: the driver ([`driver::Run`]) that every integration goes through, and its clients:
-//! [`simulate`] (outputs, events, checkpoints, batches) and [`live::Stepper`] (frame by frame).
+//! [`simulate`](fn@simulate) (outputs, events, checkpoints, batches) and [`live::Stepper`] (frame by frame).
 //! [`energy`] defines the energy error every report uses.
 pub mod bank;
 pub mod driver;

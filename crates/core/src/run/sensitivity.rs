@@ -13,7 +13,7 @@ use crate::dynamics::torque::TorqueSource;
 use crate::error::{Error, Result};
 use crate::model::Chain;
 
-/// What the run loop ([`super::simulate`]) needs of its system besides the right-hand side: the
+/// What the run loop ([`super::simulate`](fn@super::simulate)) needs of its system besides the right-hand side: the
 /// chain's form and layout (its leading `layout.dim()` values are the chain's state), and what
 /// rides along.
 pub(crate) trait Traced: OdeSystem {

@@ -85,6 +85,9 @@ pub struct Stats {
     pub energy_error: f64,
 }
 
+/// An event crossing: `(event index, t, theta, omega, p)`.
+pub type Crossing = (usize, f64, Vec<f64>, Vec<f64>, Vec<f64>);
+
 /// A run's output: `T` output times, row-major `(T, N)` arrays.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Trajectory {
@@ -111,8 +114,8 @@ pub struct Trajectory {
     pub energy_error: Vec<f64>,
     pub stats: Stats,
     pub form: Form,
-    /// Event crossings in time order: `(event index, t, theta, omega, p)`.
-    pub events: Vec<(usize, f64, Vec<f64>, Vec<f64>, Vec<f64>)>,
+    /// Event crossings in time order.
+    pub events: Vec<Crossing>,
     /// The time a terminal event stopped the run, if one did.
     pub stopped_at: Option<f64>,
     /// The forward sensitivities: `(T, S, K)` row-major, the derivative of the state entry

@@ -251,7 +251,7 @@ mod tests {
         task.inputs(&chain, &actions, true, &mut torques, &mut forces).unwrap();
         // Clipped to [-1, 1], then scaled; joint 1 has no motor.
         assert_eq!(torques, [1.0 * 0.5, 0.0, 0.25 * 2.0, -0.75 * 0.5, 0.0, 1.0 * 2.0]);
-        assert_eq!(forces, [-1.0 * 10.0, 0.0]);
+        assert_eq!(forces, [-10.0, 0.0]);
 
         let chain = acrobot();
         let task = Task::new(&chain, true, vec![Target::Joint(1)], vec![1.5], observe_all(2), Goal::Height { above: 0.85 }).unwrap();
