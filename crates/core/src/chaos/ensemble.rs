@@ -501,6 +501,28 @@ pub(crate) mod tests {
         assert_eq!(e.to_string(), "dt must be > 0 and finite, got -0.01");
     }
 
+    #[test]
+    fn the_first_failing_row_is_named_though_a_later_one_fails_sooner() {
+        // Row 0 (the first group) whirls until it blows up some steps in; row 9 (the second
+        // group, stepped beside the first) at once. Row by row, row 0 fails first.
+        let chain = &chains()[0];
+        let mut om = vec![0.0; 2 * 16];
+        (om[1], om[2 * 9]) = (1e3, 1e200);
+        let ens = |th: &[f64], om: &[f64]| ensemble(chain, th, om, 1.0, &rk4(0.01), None, Path::best(), &Watch::new()).unwrap_err();
+        let (both, first, ninth) = (ens(&[0.1; 32], &om), ens(&[0.1; 2], &om[..2]), ens(&[0.1; 2], &om[18..20]));
+        let time = |e: &Error| match e {
+            Error::Integration { t, .. } => *t,
+            other => panic!("{other}"),
+        };
+        assert!(time(&ninth) < time(&first), "{ninth} / {first}");
+        assert!(first.to_string().contains("trajectory 0: "), "{first}");
+        assert_eq!(both.to_string(), first.to_string());
+        // Row 9 alone in its pair is still found.
+        let mut om = vec![0.0; 2 * 16];
+        om[2 * 9] = 1e200;
+        assert_eq!(ens(&[0.1; 32], &om).to_string(), ninth.to_string().replace("trajectory 0", "trajectory 9"));
+    }
+
     /// The per-trajectory route of dop853: a batch `simulate` with the ensemble's output and
     /// its flip event.
     fn per_trajectory(chain: &Chain, th: &[f64], om: &[f64], t_end: f64, settings: &Settings) -> Vec<crate::run::Trajectory> {

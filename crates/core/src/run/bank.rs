@@ -415,8 +415,9 @@ fn run_body<const P: usize>(mut shares: [&mut Share; P], chain: &Chain, dt: f64,
                 fresh_until = u64::MAX;
                 for p in 0..P {
                     for j in 0..shares[p].copies.len() {
-                        going[p][j] = if r < todo[p][j] { 1.0 } else { 0.0 };
-                        if todo[p][j] > r {
+                        let on = r < todo[p][j];
+                        going[p][j] = if on { 1.0 } else { 0.0 };
+                        if on {
                             fresh_until = fresh_until.min(todo[p][j]);
                         }
                     }
