@@ -51,10 +51,7 @@ pub fn check_finite(name: &str, values: &[f64]) -> Result<()> {
 /// Refuse an array whose length is not `n`.
 pub fn check_len(name: &str, values: &[f64], n: usize) -> Result<()> {
     if values.len() != n {
-        return Err(Error::input(format!(
-            "{name} must have {n} entries (one per link), got {}",
-            values.len()
-        )));
+        return Err(Error::input(format!("{name} must have {n} entries (one per link), got {}", values.len())));
     }
     Ok(())
 }

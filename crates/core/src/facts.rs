@@ -100,9 +100,6 @@ mod tests {
             assert_eq!(AnyIntegrator::new(m, 4, 1e-10, 1e-12).facts(), m.facts(), "{}", m.name());
         }
         let by_name: Vec<_> = methods().into_iter().map(|f| (f.name, f.implicit, f.symplectic, f.needs_dt)).collect();
-        assert_eq!(
-            by_name,
-            vec![("rk4", false, false, true), ("dop853", false, false, false), ("gauss4", true, true, true), ("gauss6", true, true, true)]
-        );
+        assert_eq!(by_name, vec![("rk4", false, false, true), ("dop853", false, false, false), ("gauss4", true, true, true), ("gauss6", true, true, true)]);
     }
 }

@@ -39,7 +39,7 @@ pub use integrators::{Facts, Method};
 pub use model::{Cart, Chain};
 pub use run::events::{Condition, EventFn, EventSpec};
 pub use run::live::{Acted, Column, Stepper, Steppers};
-pub use run::task::{Goal, Target, Task};
 pub use run::simulate::Terms;
+pub use run::task::{Goal, Target, Task};
 pub use run::{simulate, simulate_batch, simulate_each, simulate_from, Checkpoint, Checkpoints, Settings, Start, Stats, Trajectory};
 pub use watch::Watch;

@@ -45,17 +45,10 @@ pub fn check(bytes: f64, what: &str, advice: &str) -> Result<()> {
     let limit = available.map_or(MAX_OUTPUT_BYTES, |a| a.min(MAX_OUTPUT_BYTES));
     if bytes > limit {
         let have = match available {
-            Some(a) => format!(
-                "{:.1} GiB available, limit {:.0} GiB",
-                a / GIB,
-                MAX_OUTPUT_BYTES / GIB
-            ),
+            Some(a) => format!("{:.1} GiB available, limit {:.0} GiB", a / GIB, MAX_OUTPUT_BYTES / GIB),
             None => format!("limit {:.0} GiB", MAX_OUTPUT_BYTES / GIB),
         };
-        return Err(Error::input(format!(
-            "{what} needs {:.1} GiB ({have}); {advice}",
-            bytes / GIB
-        )));
+        return Err(Error::input(format!("{what} needs {:.1} GiB ({have}); {advice}", bytes / GIB)));
     }
     Ok(())
 }
@@ -67,17 +60,9 @@ mod tests {
     #[test]
     fn small_requests_pass_and_huge_ones_are_refused_with_advice() {
         assert!(check(1e6, "a run", "ask for less").is_ok());
-        let e = check(
-            1e12,
-            "storing 10^10 output points of 2 links",
-            "ask for fewer with t_eval",
-        )
-        .unwrap_err();
+        let e = check(1e12, "storing 10^10 output points of 2 links", "ask for fewer with t_eval").unwrap_err();
         let m = e.to_string();
-        assert!(
-            m.starts_with("storing 10^10 output points of 2 links needs 931.3 GiB ("),
-            "{m}"
-        );
+        assert!(m.starts_with("storing 10^10 output points of 2 links needs 931.3 GiB ("), "{m}");
         assert!(m.ends_with("); ask for fewer with t_eval"), "{m}");
     }
 

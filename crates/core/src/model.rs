@@ -73,13 +73,7 @@ impl Cart {
 impl Chain {
     /// Build and validate a chain. `com` defaults to `lengths` (point masses at the link ends,
     /// seed 000) and `inertia` to zeros.
-    pub fn new(
-        lengths: &[f64],
-        masses: &[f64],
-        com: Option<&[f64]>,
-        inertia: Option<&[f64]>,
-        g: f64,
-    ) -> Result<Self> {
+    pub fn new(lengths: &[f64], masses: &[f64], com: Option<&[f64]>, inertia: Option<&[f64]>, g: f64) -> Result<Self> {
         let n = lengths.len();
         if n == 0 {
             return Err(Error::input("lengths must have at least one entry, got 0"));
@@ -131,7 +125,8 @@ impl Chain {
         // parameters so small or so large in scale that those products leave the normal range make
         // the mass matrix numerically singular in every configuration. Refuse them here, as bad
         // input, rather than at t = 0 as a failed integration.
-        let joints = Joints { damping: vec![0.0; n], friction: vec![0.0; n], friction_velocity: FRICTION_VELOCITY, any: false, inv_velocity: 1.0 / FRICTION_VELOCITY };
+        let joints =
+            Joints { damping: vec![0.0; n], friction: vec![0.0; n], friction_velocity: FRICTION_VELOCITY, any: false, inv_velocity: 1.0 / FRICTION_VELOCITY };
         let chain = Chain { lengths: lengths.to_vec(), masses: masses.to_vec(), com, inertia, g, h, diag, joints, cart: None };
         chain.check_nonsingular()?;
         // (A chain that passes the structural check has every diagonal entry > 0 in exact
@@ -293,10 +288,7 @@ impl Chain {
             return Ok(());
         }
         match values.iter().position(|v| v.abs() > MAX_STATE) {
-            Some(i) => Err(Error::input(format!(
-                "{name}[{i}] must be within +-{MAX_STATE:e} rad, got {}",
-                values[i]
-            ))),
+            Some(i) => Err(Error::input(format!("{name}[{i}] must be within +-{MAX_STATE:e} rad, got {}", values[i]))),
             None => Ok(()),
         }
     }

@@ -4,16 +4,8 @@
 use std::path::{Path, PathBuf};
 
 /// Lowest first; modules in one inner list may not use each other.
-const LAYERS: &[&[&str]] = &[
-    &["error", "par"],
-    &["watch", "memory", "trig", "interp"],
-    &["model"],
-    &["dynamics"],
-    &["integrators"],
-    &["run"],
-    &["chaos"],
-    &["facts"],
-];
+const LAYERS: &[&[&str]] =
+    &[&["error", "par"], &["watch", "memory", "trig", "interp"], &["model"], &["dynamics"], &["integrators"], &["run"], &["chaos"], &["facts"]];
 
 fn layer(module: &str) -> Option<usize> {
     LAYERS.iter().position(|l| l.contains(&module))

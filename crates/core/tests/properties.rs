@@ -11,10 +11,10 @@ fn chain_strategy() -> impl Strategy<Value = (Chain, Vec<f64>, Vec<f64>)> {
 fn chains(decades: f64) -> impl Strategy<Value = (Chain, Vec<f64>, Vec<f64>)> {
     (1usize..=50).prop_flat_map(move |n| {
         (
-            prop::collection::vec(-decades..decades, n),  // log10 length
-            prop::collection::vec(-decades..decades, n),  // log10 mass
-            prop::collection::vec(0.05f64..1.0, n),  // com / length
-            prop::collection::vec(0.0f64..0.2, n),   // inertia / (m l^2)
+            prop::collection::vec(-decades..decades, n), // log10 length
+            prop::collection::vec(-decades..decades, n), // log10 mass
+            prop::collection::vec(0.05f64..1.0, n),      // com / length
+            prop::collection::vec(0.0f64..0.2, n),       // inertia / (m l^2)
             any::<bool>(),
             prop::collection::vec(-10.0f64..10.0, n),
             prop::collection::vec(-5.0f64..5.0, n),

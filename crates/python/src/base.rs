@@ -72,14 +72,12 @@ struct ForceCall {
 impl core::ForceFn for ForceCall {
     fn eval(&self, t: f64, state: &[f64]) -> core::Result<f64> {
         Python::attach(|py| {
-            let r = self.f.call1(py, (t, vec_out(py, state.to_vec()))).and_then(|v| {
-                match v.extract::<f64>(py) {
-                    Ok(x) if x.is_finite() => Ok(x),
-                    _ => Err(InputError::new_err(format!(
-                        "the cart force function must return one finite number, got {} at t = {t}",
-                        v.bind(py).repr().map(|r| r.to_string()).unwrap_or_default()
-                    ))),
-                }
+            let r = self.f.call1(py, (t, vec_out(py, state.to_vec()))).and_then(|v| match v.extract::<f64>(py) {
+                Ok(x) if x.is_finite() => Ok(x),
+                _ => Err(InputError::new_err(format!(
+                    "the cart force function must return one finite number, got {} at t = {t}",
+                    v.bind(py).repr().map(|r| r.to_string()).unwrap_or_default()
+                ))),
             });
             r.map_err(|e| keep(&self.errors, e, t))
         })

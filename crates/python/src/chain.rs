@@ -214,15 +214,21 @@ impl PyChain {
         let errors = Errors::default();
         let mut src = crate::torque::torque(py, self.inner.n(), torque.as_deref(), &slot)?;
         let pivot = base::pivot(py, pivot, &errors)?;
-        let (td, pd) = rows::hamilton(&self.inner, slice("theta", &theta)?, slice("p", &p)?, t, &mut src, pivot.as_ref())
-            .map_err(|e| fail(py, e, &slot, &errors))?;
+        let (td, pd) =
+            rows::hamilton(&self.inner, slice("theta", &theta)?, slice("p", &p)?, t, &mut src, pivot.as_ref()).map_err(|e| fail(py, e, &slot, &errors))?;
         Ok((vec_out(py, td), vec_out(py, pd)))
     }
 
     /// The momenta of each row; with a cart `N + 1` per row, `p_x` first (`cart_v`: the cart's
     /// velocity, one value or one per row).
     #[pyo3(signature = (theta, omega, *, cart_v=None))]
-    fn momenta<'py>(&self, py: Python<'py>, theta: PyReadonlyArray1<'py, f64>, omega: PyReadonlyArray1<'py, f64>, cart_v: Option<Vec<f64>>) -> PyResult<Array<'py>> {
+    fn momenta<'py>(
+        &self,
+        py: Python<'py>,
+        theta: PyReadonlyArray1<'py, f64>,
+        omega: PyReadonlyArray1<'py, f64>,
+        cart_v: Option<Vec<f64>>,
+    ) -> PyResult<Array<'py>> {
         let (theta, omega) = (slice("theta", &theta)?, slice("omega", &omega)?);
         let out = match cart_v {
             None if self.inner.cart().is_none() => rows::momenta(&self.inner, theta, omega),
@@ -291,14 +297,16 @@ impl PyChain {
 }
 
 /// The chain with its joints' losses and its cart.
-fn extend(py: Python<'_>, chain: CoreChain, damping: Option<Vec<f64>>, friction: Option<Vec<f64>>, friction_velocity: f64, cart: Option<(f64, f64)>) -> PyResult<PyChain> {
+fn extend(
+    py: Python<'_>,
+    chain: CoreChain,
+    damping: Option<Vec<f64>>,
+    friction: Option<Vec<f64>>,
+    friction_velocity: f64,
+    cart: Option<(f64, f64)>,
+) -> PyResult<PyChain> {
     let n = chain.n();
     let (damping, friction) = (damping.unwrap_or_else(|| vec![0.0; n]), friction.unwrap_or_else(|| vec![0.0; n]));
     let cart = cart.map(|(m, d)| core::Cart::new(m, d)).transpose().map_err(|e| to_py(py, e))?;
-    chain
-        .with_losses(&damping, &friction, friction_velocity)
-        .and_then(|c| c.with_cart(cart))
-        .map(|inner| PyChain { inner })
-        .map_err(|e| to_py(py, e))
+    chain.with_losses(&damping, &friction, friction_velocity).and_then(|c| c.with_cart(cart)).map(|inner| PyChain { inner }).map_err(|e| to_py(py, e))
 }
-

@@ -189,10 +189,9 @@ fn first_flips<'py>(
     let pivot = crate::base::pivot(py, pivot, &errors)?;
     let (theta0, omega0) = (slice("theta0", &theta0)?, slice("omega0", &omega0)?);
     let watch = Watch::units((theta0.len() / c.n().max(1)) as u64);
-    let out = interruptible(py, &watch, progress.as_ref(), false, || {
-        core::chaos::first_flips(c, theta0, omega0, t_max, dt, link, &torque, pivot.as_ref(), &watch)
-    })?
-    .map_err(|e| take(&errors).unwrap_or_else(|| to_py(py, e)))?;
+    let out =
+        interruptible(py, &watch, progress.as_ref(), false, || core::chaos::first_flips(c, theta0, omega0, t_max, dt, link, &torque, pivot.as_ref(), &watch))?
+            .map_err(|e| take(&errors).unwrap_or_else(|| to_py(py, e)))?;
     Ok(vec_out(py, out))
 }
 
@@ -229,14 +228,7 @@ fn certified_flips<'py>(
 }
 
 /// The arrays of an ensemble.
-type EnsembleOut<'py> = (
-    Array<'py>,
-    Array<'py>,
-    Array<'py>,
-    Array<'py>,
-    Array<'py, u64>,
-    Array<'py>,
-);
+type EnsembleOut<'py> = (Array<'py>, Array<'py>, Array<'py>, Array<'py>, Array<'py, u64>, Array<'py>);
 
 /// An ensemble in SIMD lanes (`core::chaos::ensemble`): `(theta, omega, p, energy_error, steps,
 /// first_flip)` flat, or None where the core sends it the per-trajectory way (a method other than
@@ -294,4 +286,3 @@ fn ensemble<'py>(
 fn flip_energy_threshold(py: Python<'_>, chain: &PyChain, link: Option<usize>) -> PyResult<f64> {
     core::chaos::flip_energy_threshold(&chain.inner, link).map_err(|e| to_py(py, e))
 }
-

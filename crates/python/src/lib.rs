@@ -64,13 +64,7 @@ pub(crate) fn vec_out(py: Python<'_>, v: Vec<f64>) -> Bound<'_, PyArray1<f64>> {
 /// `progress(fraction)` about ten times a second. A signal (or an exception from `progress`)
 /// stops the work through `watch` and is raised here once the work has wound down. Work the
 /// core calls `short` runs here, without the watcher thread.
-pub(crate) fn interruptible<R: Send>(
-    py: Python<'_>,
-    watch: &Watch,
-    progress: Option<&Py<PyAny>>,
-    short: bool,
-    work: impl FnOnce() -> R + Send,
-) -> PyResult<R> {
+pub(crate) fn interruptible<R: Send>(py: Python<'_>, watch: &Watch, progress: Option<&Py<PyAny>>, short: bool, work: impl FnOnce() -> R + Send) -> PyResult<R> {
     if short {
         return Ok(py.detach(work));
     }

@@ -93,17 +93,14 @@ struct PyEvent {
 impl core::EventFn for PyEvent {
     fn value(&self, t: f64, theta: &[f64], omega: &[f64]) -> core::Result<f64> {
         Python::attach(|py| {
-            let r = self
-                .f
-                .call1(py, (t, vec_out(py, theta.to_vec()), vec_out(py, omega.to_vec())))
-                .and_then(|v| {
-                    v.extract::<f64>(py).map_err(|_| {
-                        InputError::new_err(format!(
-                            "the event function must return a number, got {}",
-                            v.bind(py).repr().map(|r| r.to_string()).unwrap_or_default()
-                        ))
-                    })
-                });
+            let r = self.f.call1(py, (t, vec_out(py, theta.to_vec()), vec_out(py, omega.to_vec()))).and_then(|v| {
+                v.extract::<f64>(py).map_err(|_| {
+                    InputError::new_err(format!(
+                        "the event function must return a number, got {}",
+                        v.bind(py).repr().map(|r| r.to_string()).unwrap_or_default()
+                    ))
+                })
+            });
             r.map_err(|e| {
                 *self.error.lock().unwrap_or_else(|p| p.into_inner()) = Some(e);
                 Error::Torque { t }
@@ -232,9 +229,7 @@ fn simulate<'py>(
     let resume = resume.as_deref().map(core::Checkpoint::from_bytes).transpose().map_err(err)?;
     let callable = matches!(src, AnyTorque::Call(_) | AnyTorque::JointCall(_));
     if (checkpoint.is_some() || resume.is_some()) && (b > 1 || callable || base_callbacks) {
-        return Err(InputError::new_err(
-            "checkpoints need a single run with built-in inputs (not a batch, not a Python torque, pivot or cart force function)",
-        ));
+        return Err(InputError::new_err("checkpoints need a single run with built-in inputs (not a batch, not a Python torque, pivot or cart force function)"));
     }
     let save_error: Mutex<Option<PyErr>> = Default::default();
     let mut last_save = Instant::now();
@@ -275,8 +270,7 @@ fn simulate<'py>(
             let s = $s;
             if b > 1 || batch {
                 let watch = Watch::units(b as u64);
-                interruptible(py, &watch, progress, short, || core::simulate_batch(c, theta0, omega0, t_end, &settings, &s, &watch))?
-                    .map(Trajectories)
+                interruptible(py, &watch, progress, short, || core::simulate_batch(c, theta0, omega0, t_end, &settings, &s, &watch))?.map(Trajectories)
             } else {
                 let watch = Watch::new();
                 let mut monitor = |t: f64| {
@@ -328,4 +322,3 @@ fn checkpoint_time(py: Python<'_>, state: Vec<u8>) -> PyResult<(f64, u64)> {
     let cp = core::Checkpoint::from_bytes(&state).map_err(|e| to_py(py, e))?;
     Ok((cp.t(), cp.run.steps))
 }
-

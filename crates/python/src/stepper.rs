@@ -92,7 +92,17 @@ impl PySteppers {
     #[new]
     #[pyo3(signature = (chain, count, *, method, rtol, atol, max_steps, dt=None, form=None))]
     #[allow(clippy::too_many_arguments)]
-    fn new(py: Python<'_>, chain: &PyChain, count: usize, method: &str, rtol: f64, atol: f64, max_steps: u64, dt: Option<f64>, form: Option<&str>) -> PyResult<Self> {
+    fn new(
+        py: Python<'_>,
+        chain: &PyChain,
+        count: usize,
+        method: &str,
+        rtol: f64,
+        atol: f64,
+        max_steps: u64,
+        dt: Option<f64>,
+        form: Option<&str>,
+    ) -> PyResult<Self> {
         let err = |e| to_py(py, e);
         let settings = Settings {
             method: Method::parse(method).map_err(err)?,
@@ -219,7 +229,8 @@ impl PySteppers {
         mut steps: PyReadwriteArray1<'_, u64>,
         limit: Option<u64>,
         active: Option<PyReadonlyArray1<'_, bool>>,
-    ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>, Array<'py>, Array<'py, bool>, Array<'py, bool>, usize)> {
+    ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>, Array<'py>, Array<'py, bool>, Array<'py, bool>, usize)>
+    {
         let actions = slice("actions", &actions)?;
         let active = match &active {
             Some(a) => a.as_slice().map_err(|_| InputError::new_err("active must be a C-contiguous bool array"))?,
@@ -231,7 +242,14 @@ impl PySteppers {
         let (mut states, mut balance, mut obs) = (vec![0.0; count * k], vec![0.0; count * 3], vec![0.0; count * width]);
         let (mut reward, mut terminated, mut truncated) = (vec![0.0; count], vec![false; count], vec![false; count]);
         let inner = &mut self.inner;
-        let out = core::Acted { states: &mut states, balance: &mut balance, obs: &mut obs, reward: &mut reward, terminated: &mut terminated, truncated: &mut truncated };
+        let out = core::Acted {
+            states: &mut states,
+            balance: &mut balance,
+            obs: &mut obs,
+            reward: &mut reward,
+            terminated: &mut terminated,
+            truncated: &mut truncated,
+        };
         let ended = py.detach(|| inner.act(task, actions, batched, span, active, (steps, limit), out)).map_err(|e| to_py(py, e))?;
         Ok((
             PyArray1::from_vec(py, states).reshape([count, k])?,

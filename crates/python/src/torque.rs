@@ -22,11 +22,7 @@ impl TorqueSource for Callback<'_> {
     }
     fn eval(&mut self, t: f64, theta: &[f64], omega: &[f64], out: &mut [f64]) -> core::Result<()> {
         let py = self.f.py();
-        let result = if self.with_state {
-            self.f.call1((t, vec_out(py, theta.to_vec()), vec_out(py, omega.to_vec())))
-        } else {
-            self.f.call1((t,))
-        };
+        let result = if self.with_state { self.f.call1((t, vec_out(py, theta.to_vec()), vec_out(py, omega.to_vec()))) } else { self.f.call1((t,)) };
         let fail = |err: PyErr| {
             *self.error.borrow_mut() = Some(err);
             Error::Torque { t }
@@ -137,9 +133,7 @@ impl PyTorque {
     fn builtin(&self, py: Python<'_>, n: usize) -> PyResult<Option<Builtin>> {
         let b = match &self.kind {
             Kind::Constant(v) => Builtin::constant(n, v.clone()),
-            Kind::Sinusoid { amplitude, frequency, phase, offset } => {
-                Builtin::sinusoid(n, amplitude.clone(), frequency.clone(), phase.clone(), offset.clone())
-            }
+            Kind::Sinusoid { amplitude, frequency, phase, offset } => Builtin::sinusoid(n, amplitude.clone(), frequency.clone(), phase.clone(), offset.clone()),
             Kind::Table { t, values, interp } => Builtin::table(n, t.clone(), values.clone(), *interp),
             Kind::Function { .. } => return Ok(None),
         };
@@ -185,12 +179,7 @@ impl TorqueSource for AnyTorque<'_> {
 }
 
 /// The torque a run or an evaluation uses; `error` keeps a Python function's own exception.
-pub(crate) fn torque<'py>(
-    py: Python<'py>,
-    n: usize,
-    spec: Option<&PyTorque>,
-    error: &'py RefCell<Option<PyErr>>,
-) -> PyResult<AnyTorque<'py>> {
+pub(crate) fn torque<'py>(py: Python<'py>, n: usize, spec: Option<&PyTorque>, error: &'py RefCell<Option<PyErr>>) -> PyResult<AnyTorque<'py>> {
     let Some(spec) = spec else { return Ok(AnyTorque::Builtin(Builtin::None)) };
     if let Kind::Function { f, with_state } = &spec.kind {
         let cb = Callback { f: f.bind(py).clone(), with_state: *with_state, error };
@@ -219,11 +208,9 @@ pub(crate) fn timed(py: Python<'_>, n: usize, spec: Option<&PyTorque>) -> PyResu
 pub(crate) fn builtin_only(py: Python<'_>, n: usize, spec: Option<&PyTorque>, what: &str) -> PyResult<Builtin> {
     match spec {
         None => Ok(Builtin::None),
-        Some(PyTorque { joint: true, .. }) => {
-            Err(InputError::new_err(format!("{what} takes generalized torques (torque=), not joint torques")))
-        }
-        Some(spec) => spec.builtin(py, n)?.ok_or_else(|| {
-            InputError::new_err(format!("{what} takes built-in torques only (constant, Sinusoid, Table), not a Python function"))
-        }),
+        Some(PyTorque { joint: true, .. }) => Err(InputError::new_err(format!("{what} takes generalized torques (torque=), not joint torques"))),
+        Some(spec) => spec
+            .builtin(py, n)?
+            .ok_or_else(|| InputError::new_err(format!("{what} takes built-in torques only (constant, Sinusoid, Table), not a Python function"))),
     }
 }

@@ -26,9 +26,7 @@ use std::cell::RefCell;
 use std::sync::Arc;
 
 use multipendulum_core::model::FRICTION_VELOCITY;
-use multipendulum_core::{
-    Axis, Builtin, Cart, Chain, Drive, Error, Force, Interp, Joint, Method, Pivot, Settings, Stepper, TorqueSource,
-};
+use multipendulum_core::{Axis, Builtin, Cart, Chain, Drive, Error, Force, Interp, Joint, Method, Pivot, Settings, Stepper, TorqueSource};
 
 thread_local! {
     static LAST_ERROR: RefCell<String> = const { RefCell::new(String::new()) };
@@ -98,7 +96,13 @@ fn facts_json() -> String {
         .map(|m| {
             format!(
                 "\"{}\":{{\"order\":{},\"symplectic\":{},\"implicit\":{},\"adaptive\":{},\"needs_dt\":{},\"forms\":[{}]}}",
-                m.name, m.order, m.symplectic, m.implicit, m.adaptive, m.needs_dt, list(m.forms.clone())
+                m.name,
+                m.order,
+                m.symplectic,
+                m.implicit,
+                m.adaptive,
+                m.needs_dt,
+                list(m.forms.clone())
             )
         })
         .collect();
@@ -185,12 +189,8 @@ impl Signal {
         match self.kind {
             SIGNAL_CONSTANT if d.len() == 1 => Axis::fixed(name, d[0]),
             SIGNAL_SINUSOID if d.len() == 4 => Axis::sinusoid(name, d[0], d[1], d[2], d[3]),
-            SIGNAL_CONSTANT | SIGNAL_SINUSOID => {
-                Err(Error::input(format!("pivot {name}: expected one value per parameter, got {} numbers", d.len())))
-            }
-            SIGNAL_LINEAR => Err(Error::input(format!(
-                "pivot {name}: a table must be cubic (the pivot's motion needs two derivatives)"
-            ))),
+            SIGNAL_CONSTANT | SIGNAL_SINUSOID => Err(Error::input(format!("pivot {name}: expected one value per parameter, got {} numbers", d.len()))),
+            SIGNAL_LINEAR => Err(Error::input(format!("pivot {name}: a table must be cubic (the pivot's motion needs two derivatives)"))),
             _ => Axis::spline(name, d[..self.rows].to_vec(), d[self.rows..].to_vec()),
         }
     }
@@ -263,11 +263,7 @@ impl Setup {
     fn apply(&self, chain: Chain) -> Result<(Chain, Drive, Torque), Error> {
         let n = chain.n();
         let zeros = vec![0.0; n];
-        let chain = chain.with_losses(
-            self.damping.as_deref().unwrap_or(&zeros),
-            self.friction.as_deref().unwrap_or(&zeros),
-            self.friction_velocity,
-        )?;
+        let chain = chain.with_losses(self.damping.as_deref().unwrap_or(&zeros), self.friction.as_deref().unwrap_or(&zeros), self.friction_velocity)?;
         let cart = self.cart.map(|(m, c)| Cart::new(m, c)).transpose()?;
         let chain = chain.with_cart(cart)?;
         // The core's check of a run's cart state, which its Stepper::new does not call (yet).
@@ -355,14 +351,7 @@ pub unsafe extern "C" fn mp_setup_cart(setup: *mut Setup, mass: f64, damping: f6
     s.cart0 = [x0, v0];
 }
 
-unsafe fn set_signal(
-    slot: &mut Option<Signal>,
-    kind: i32,
-    rows: usize,
-    data: *const f64,
-    len: usize,
-    what: &str,
-) -> i32 {
+unsafe fn set_signal(slot: &mut Option<Signal>, kind: i32, rows: usize, data: *const f64, len: usize, what: &str) -> i32 {
     match Signal::read(kind, rows, data, len, what) {
         Ok(sig) => {
             *slot = Some(sig);
@@ -629,20 +618,8 @@ pub unsafe extern "C" fn mp_sim_terms(sim: *mut Sim, out: *mut f64) -> i32 {
     let residual = sim.stepper.energy_error();
     let (x, v) = sim.stepper.cart();
     let base = if sim.cart { [x, 0.0] } else { terms.pivot_pos };
-    let values = [
-        terms.kinetic,
-        terms.energy - terms.kinetic,
-        terms.energy,
-        terms.torque,
-        terms.pivot,
-        terms.cart,
-        terms.dissipated,
-        residual,
-        base[0],
-        base[1],
-        x,
-        v,
-    ];
+    let values =
+        [terms.kinetic, terms.energy - terms.kinetic, terms.energy, terms.torque, terms.pivot, terms.cart, terms.dissipated, residual, base[0], base[1], x, v];
     std::slice::from_raw_parts_mut(out, TERMS).copy_from_slice(&values);
     DONE
 }
@@ -706,13 +683,21 @@ impl Approach {
         let coast = x0 + 2.0 * v0 / w;
         let within = |r: f64| peak(w, x0, v0, r) <= limit;
         let target = if within(target) || !within(coast) {
-            if within(target) { target } else { coast }
+            if within(target) {
+                target
+            } else {
+                coast
+            }
         } else {
             // Bisection between an acceptable target and one that is not.
             let (mut ok, mut bad) = (coast, target);
             for _ in 0..64 {
                 let mid = 0.5 * (ok + bad);
-                if within(mid) { ok = mid } else { bad = mid }
+                if within(mid) {
+                    ok = mid
+                } else {
+                    bad = mid
+                }
             }
             ok
         };
@@ -791,10 +776,7 @@ pub unsafe extern "C" fn mp_sim_follow(sim: *mut Sim, x: f64, y: f64) -> i32 {
             let (t, m) = (sim.stepper.t(), sim.stepper.pivot_motion()?);
             let axes = [0, 1].map(|k| Approach::towards(t, m.pos[k], m.vel[k], [x, y][k]));
             let dragged = Arc::new(Dragged(axes));
-            Drive {
-                pivot: Some(Pivot { x: Axis::Function(dragged.clone()), y: Axis::Function(Arc::new(DraggedY(dragged))) }),
-                force: None,
-            }
+            Drive { pivot: Some(Pivot { x: Axis::Function(dragged.clone()), y: Axis::Function(Arc::new(DraggedY(dragged))) }), force: None }
         };
         sim.stepper.set_drive(drive)
     };
@@ -872,11 +854,7 @@ pub unsafe extern "C" fn mp_first_flips(
     let run = || -> Result<Vec<f64>, Error> {
         let n = 2;
         let (lengths, masses) = (slice(lengths, n), slice(masses, n));
-        let chain = if rods != 0 {
-            Chain::rods(lengths, masses, g)?
-        } else {
-            Chain::new(lengths, masses, optional(com, n), optional(inertia, n), g)?
-        };
+        let chain = if rods != 0 { Chain::rods(lengths, masses, g)? } else { Chain::new(lengths, masses, optional(com, n), optional(inertia, n), g)? };
         let link = match link {
             -1 => None,
             k if k >= 0 => Some(k as usize),
@@ -913,7 +891,6 @@ mod facts_tests {
         }
         assert!(json.contains("\"rtol\":1e-10"), "{json}");
         assert_eq!(json.matches('{').count(), json.matches('}').count());
-
     }
 }
 
@@ -931,8 +908,21 @@ mod tests {
         let masses = vec![1.0; n];
         let omega0 = vec![0.0; n];
         mp_sim_new(
-            n, 0, lengths.as_ptr(), masses.as_ptr(), std::ptr::null(), std::ptr::null(), 9.81,
-            method.as_ptr(), method.len(), dt, 1e-10, 1e-12, theta0.as_ptr(), omega0.as_ptr(), std::ptr::null(),
+            n,
+            0,
+            lengths.as_ptr(),
+            masses.as_ptr(),
+            std::ptr::null(),
+            std::ptr::null(),
+            9.81,
+            method.as_ptr(),
+            method.len(),
+            dt,
+            1e-10,
+            1e-12,
+            theta0.as_ptr(),
+            omega0.as_ptr(),
+            std::ptr::null(),
         )
     }
 
@@ -942,8 +932,21 @@ mod tests {
         let ones = vec![1.0; n];
         let omega0 = vec![0.0; n];
         let sim = mp_sim_new(
-            n, 1, ones.as_ptr(), ones.as_ptr(), std::ptr::null(), std::ptr::null(), 9.81,
-            method.as_ptr(), method.len(), dt, 1e-10, 1e-12, theta0.as_ptr(), omega0.as_ptr(), setup,
+            n,
+            1,
+            ones.as_ptr(),
+            ones.as_ptr(),
+            std::ptr::null(),
+            std::ptr::null(),
+            9.81,
+            method.as_ptr(),
+            method.len(),
+            dt,
+            1e-10,
+            1e-12,
+            theta0.as_ptr(),
+            omega0.as_ptr(),
+            setup,
         );
         mp_setup_free(setup);
         sim
@@ -1278,14 +1281,33 @@ mod tests {
             let mut out = [0.0; 8];
             let call = |link: i32, t_max: f64, out: &mut [f64; 8]| {
                 mp_first_flips(
-                    0, lengths.as_ptr(), masses.as_ptr(), std::ptr::null(), std::ptr::null(), 9.81, theta.as_ptr(),
-                    omega.as_ptr(), 8, t_max, 0.01, link, out.as_mut_ptr(),
+                    0,
+                    lengths.as_ptr(),
+                    masses.as_ptr(),
+                    std::ptr::null(),
+                    std::ptr::null(),
+                    9.81,
+                    theta.as_ptr(),
+                    omega.as_ptr(),
+                    8,
+                    t_max,
+                    0.01,
+                    link,
+                    out.as_mut_ptr(),
                 )
             };
             assert_eq!(call(-1, 10.0, &mut out), DONE, "{}", message());
             let chain = Chain::new(&lengths, &masses, None, None, 9.81).unwrap();
             let core = multipendulum_core::chaos::first_flips(
-                &chain, &theta, &omega, 10.0, 0.01, None, &Builtin::None, None, &multipendulum_core::watch::Watch::new(),
+                &chain,
+                &theta,
+                &omega,
+                10.0,
+                0.01,
+                None,
+                &Builtin::None,
+                None,
+                &multipendulum_core::watch::Watch::new(),
             )
             .unwrap();
             assert_eq!(out.to_vec(), core);
@@ -1296,5 +1318,4 @@ mod tests {
             assert_eq!(message(), "t_max must be > 0 and finite, got -1");
         }
     }
-
 }

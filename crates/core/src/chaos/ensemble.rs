@@ -21,19 +21,19 @@
 use std::f64::consts::PI;
 
 use super::flip_time;
-use crate::dynamics::system::NON_FINITE;
-use crate::error::{Error, Result};
 use crate::dynamics::base::Drive;
+use crate::dynamics::system::NON_FINITE;
 use crate::dynamics::system::{Form, Layout};
 use crate::dynamics::torque::{Builtin, Timed};
+use crate::error::{Error, Result};
 use crate::integrators::dop853_lanes::{mask, Dop853Lanes, StartFailure};
 use crate::integrators::lanes::{failed_at, ChainLanes, Rk4Lanes};
 use crate::integrators::Method;
 use crate::model::Chain;
 use crate::par::*;
 use crate::run::driver::fixed_steps;
-use crate::run::events::{Condition, EventSpec, Tracker};
 use crate::run::energy::EnergyBalance;
+use crate::run::events::{Condition, EventSpec, Tracker};
 use crate::run::lanes::{lane_of, raw_row, LaneControl};
 use crate::run::simulate::Books;
 use crate::run::Settings;
@@ -74,7 +74,16 @@ pub fn route(method: Method) -> Result<Option<Path>> {
 /// messages. `watch` counts rows done and stops the work between
 /// steps.
 #[allow(clippy::too_many_arguments)]
-pub fn ensemble(chain: &Chain, theta0: &[f64], omega0: &[f64], t_end: f64, settings: &Settings, drive: Option<&Timed>, path: Path, watch: &Watch) -> Result<Ensemble> {
+pub fn ensemble(
+    chain: &Chain,
+    theta0: &[f64],
+    omega0: &[f64],
+    t_end: f64,
+    settings: &Settings,
+    drive: Option<&Timed>,
+    path: Path,
+    watch: &Watch,
+) -> Result<Ensemble> {
     let n = chain.n();
     let drive = drive.filter(|d| !matches!(d.builtin, Builtin::None));
     if !matches!(settings.method, Method::Rk4 | Method::Dop853) || !settings.adaptive {
@@ -118,7 +127,17 @@ pub fn ensemble(chain: &Chain, theta0: &[f64], omega0: &[f64], t_end: f64, setti
 }
 
 #[allow(clippy::too_many_arguments)]
-fn run_chunk_on(path: Path, chain: &Chain, th: &[f64], om: &[f64], t_end: f64, settings: &Settings, drive: Option<&Timed>, first: usize, watch: &Watch) -> Result<Ensemble> {
+fn run_chunk_on(
+    path: Path,
+    chain: &Chain,
+    th: &[f64],
+    om: &[f64],
+    t_end: f64,
+    settings: &Settings,
+    drive: Option<&Timed>,
+    first: usize,
+    watch: &Watch,
+) -> Result<Ensemble> {
     match path {
         // SAFETY: the path was checked available when chosen (`bank::requested`).
         #[cfg(target_arch = "x86_64")]
@@ -132,14 +151,32 @@ fn run_chunk_on(path: Path, chain: &Chain, th: &[f64], om: &[f64], t_end: f64, s
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,fma")]
 #[allow(clippy::too_many_arguments)]
-unsafe fn run_chunk_avx512(chain: &Chain, th: &[f64], om: &[f64], t_end: f64, settings: &Settings, drive: Option<&Timed>, first: usize, watch: &Watch) -> Result<Ensemble> {
+unsafe fn run_chunk_avx512(
+    chain: &Chain,
+    th: &[f64],
+    om: &[f64],
+    t_end: f64,
+    settings: &Settings,
+    drive: Option<&Timed>,
+    first: usize,
+    watch: &Watch,
+) -> Result<Ensemble> {
     run_chunk(chain, th, om, t_end, settings, drive, first, watch)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 #[allow(clippy::too_many_arguments)]
-unsafe fn run_chunk_avx2(chain: &Chain, th: &[f64], om: &[f64], t_end: f64, settings: &Settings, drive: Option<&Timed>, first: usize, watch: &Watch) -> Result<Ensemble> {
+unsafe fn run_chunk_avx2(
+    chain: &Chain,
+    th: &[f64],
+    om: &[f64],
+    t_end: f64,
+    settings: &Settings,
+    drive: Option<&Timed>,
+    first: usize,
+    watch: &Watch,
+) -> Result<Ensemble> {
     run_chunk(chain, th, om, t_end, settings, drive, first, watch)
 }
 
@@ -375,10 +412,15 @@ fn dop853_rows(rows: &mut Rows, t_end: f64, settings: &Settings, watch: &Watch) 
                 rows.error(slot[j].unwrap_or(0), t[j], &s.reason(j))
             })?;
             for j in (0..LANES).filter(|&j| crossed[j]) {
-                trackers[j].locate(t[j], h_try[j], |x, out| {
-                    dp.interpolate(j, &y, x, out);
-                    Ok(())
-                }, m)?;
+                trackers[j].locate(
+                    t[j],
+                    h_try[j],
+                    |x, out| {
+                        dp.interpolate(j, &y, x, out);
+                        Ok(())
+                    },
+                    m,
+                )?;
                 let r = slot[j].unwrap_or(0);
                 rows.out.first_flip[r] = trackers[j].hits.first().map_or(f64::INFINITY, |hit| hit.t);
                 found[j] = true;
@@ -612,7 +654,11 @@ pub(crate) mod tests {
         assert_eq!(rest, "reached max_steps = 40 before t_end");
         let row: usize = row.parse().unwrap();
         let alone = Settings { t_eval: Some(vec![2.0]), ..short.clone() };
-        let Error::Integration { t: at, .. } = crate::run::simulate(chain, &th[3 * row..3 * row + 3], &om[3 * row..3 * row + 3], 2.0, &alone, Builtin::None, &mut |_| Ok(())).unwrap_err() else { panic!() };
+        let Error::Integration { t: at, .. } =
+            crate::run::simulate(chain, &th[3 * row..3 * row + 3], &om[3 * row..3 * row + 3], 2.0, &alone, Builtin::None, &mut |_| Ok(())).unwrap_err()
+        else {
+            panic!()
+        };
         assert!((t - at).abs() < 1e-6, "{t} vs {at}");
         // (On a chain without the friction's stiffness, where the routes' steps agree.)
         let (chain, small) = (&chains()[1], Settings { dt: Some(1e-4), ..settings.clone() });
@@ -644,7 +690,10 @@ pub(crate) mod tests {
     #[test]
     fn lanes_on_a_moving_pivot_agree_with_the_per_trajectory_route_and_close_the_energy_balance() {
         use crate::dynamics::base::{Axis, Pivot};
-        let shaken = Pivot { x: Axis::sinusoid("x", 0.05, 20.0, 0.3, 0.1).unwrap(), y: Axis::spline("y", vec![0.0, 0.2, 0.5, 1.0], vec![0.0, 0.03, -0.02, 0.01]).unwrap() };
+        let shaken = Pivot {
+            x: Axis::sinusoid("x", 0.05, 20.0, 0.3, 0.1).unwrap(),
+            y: Axis::spline("y", vec![0.0, 0.2, 0.5, 1.0], vec![0.0, 0.03, -0.02, 0.01]).unwrap(),
+        };
         let chains = chains();
         // Ideal, damped with friction, general links.
         for c in [0, 3, 2] {
@@ -679,7 +728,10 @@ pub(crate) mod tests {
         let chains = chains();
         let drives = [
             Timed { builtin: Builtin::sinusoid(2, vec![1.5, -0.7], vec![3.0, 5.5], vec![0.1, 0.0], vec![0.2, 0.0]).unwrap(), joint: false },
-            Timed { builtin: Builtin::table(3, vec![0.0, 0.3, 0.9], vec![0.0, 1.0, -2.0, 1.0, 0.5, 0.0, 2.0, -1.0, 0.3], crate::Interp::Cubic).unwrap(), joint: true },
+            Timed {
+                builtin: Builtin::table(3, vec![0.0, 0.3, 0.9], vec![0.0, 1.0, -2.0, 1.0, 0.5, 0.0, 2.0, -1.0, 0.3], crate::Interp::Cubic).unwrap(),
+                joint: true,
+            },
         ];
         // The double pendulum ideal, damped and on a free cart; the rods ideal and damped on a
         // damped cart.

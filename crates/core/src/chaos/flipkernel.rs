@@ -26,15 +26,15 @@
 use std::f64::consts::PI;
 
 use super::flip_time;
-use crate::trig::lanes::{each, sin_cos, Lane, Path, LANES};
+use crate::dynamics::base::Pivot;
+use crate::dynamics::system::NON_FINITE;
+use crate::dynamics::torque::Timed;
 use crate::dynamics::{Singular, PIVOT_TOL};
 use crate::error::{Error, Result};
-use crate::dynamics::base::Pivot;
-use crate::dynamics::torque::Timed;
 use crate::integrators::lanes::{failed_at, step_system_pair, ChainLanes as Equations, Rk4Lanes, Stepped};
 use crate::model::Chain;
 use crate::par::*;
-use crate::dynamics::system::NON_FINITE;
+use crate::trig::lanes::{each, sin_cos, Lane, Path, LANES};
 use crate::watch::Watch;
 
 /// Trajectories per parallel task (each task refills its lanes from its own chunk).
@@ -316,7 +316,17 @@ struct ChainLanes {
 impl ChainLanes {
     fn new(chain: &Chain, m: usize) -> Self {
         let (n, lanes) = (chain.n(), |k| vec![[0.0; LANES]; k]);
-        ChainLanes { y: lanes(m), y0: lanes(m), tau: lanes(n), q: lanes(n), rk: Rk4Lanes::with_dim(n, m), step: [0; LANES], id: [0; LANES], active: [0.0; LANES], live: 0 }
+        ChainLanes {
+            y: lanes(m),
+            y0: lanes(m),
+            tau: lanes(n),
+            q: lanes(n),
+            rk: Rk4Lanes::with_dim(n, m),
+            step: [0; LANES],
+            id: [0; LANES],
+            active: [0.0; LANES],
+            live: 0,
+        }
     }
 
     /// As [`Lanes::load`], for N links: the chunk's `next` row not already flipped into `lane`,
@@ -355,7 +365,17 @@ impl ChainLanes {
     /// each lane whose row flipped or ran its `steps` out written to `out` and loaded anew.
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
-    fn settle(&mut self, stepped: Stepped, steps: u64, dt: f64, links: &[usize], next: &mut usize, theta0: &[f64], omega0: &[f64], out: &mut [f64]) -> Result<()> {
+    fn settle(
+        &mut self,
+        stepped: Stepped,
+        steps: u64,
+        dt: f64,
+        links: &[usize],
+        next: &mut usize,
+        theta0: &[f64],
+        omega0: &[f64],
+        out: &mut [f64],
+    ) -> Result<()> {
         let n = self.tau.len();
         let nonfinite = match stepped {
             Ok(nonfinite) => nonfinite,
@@ -443,7 +463,9 @@ fn run_chunk_chain(
             let sys = |tau, q| Equations { chain, tau, drive, force: &[0.0; LANES], pivot, pivot_work: false, q };
             let (mut sa, mut sb) = (sys(&a.tau, &mut a.q), sys(&b.tau, &mut b.q));
             match (a.live > 0, b.live > 0) {
-                (true, true) => step_system_pair([&mut a.rk, &mut b.rk], [&mut a.y, &mut b.y], [&ta, &tb], dt, [&a.active, &b.active], [&mut sa, &mut sb]).map(Some),
+                (true, true) => {
+                    step_system_pair([&mut a.rk, &mut b.rk], [&mut a.y, &mut b.y], [&ta, &tb], dt, [&a.active, &b.active], [&mut sa, &mut sb]).map(Some)
+                }
                 (true, false) => [Some(a.rk.step_system_at(&mut a.y, &ta, dt, &a.active, &mut sa)), None],
                 _ => [None, Some(b.rk.step_system_at(&mut b.y, &tb, dt, &b.active, &mut sb))],
             }
@@ -460,19 +482,50 @@ fn run_chunk_chain(
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,fma")]
 #[allow(clippy::too_many_arguments)]
-unsafe fn run_chunk_chain_avx512(chain: &Chain, th: &[f64], om: &[f64], steps: u64, dt: f64, links: &[usize], drive: (Option<&Timed>, Option<&Pivot>), stop: &Watch, out: &mut [f64]) -> Result<()> {
+unsafe fn run_chunk_chain_avx512(
+    chain: &Chain,
+    th: &[f64],
+    om: &[f64],
+    steps: u64,
+    dt: f64,
+    links: &[usize],
+    drive: (Option<&Timed>, Option<&Pivot>),
+    stop: &Watch,
+    out: &mut [f64],
+) -> Result<()> {
     run_chunk_chain(chain, th, om, steps, dt, links, drive, stop, out)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 #[allow(clippy::too_many_arguments)]
-unsafe fn run_chunk_chain_avx2(chain: &Chain, th: &[f64], om: &[f64], steps: u64, dt: f64, links: &[usize], drive: (Option<&Timed>, Option<&Pivot>), stop: &Watch, out: &mut [f64]) -> Result<()> {
+unsafe fn run_chunk_chain_avx2(
+    chain: &Chain,
+    th: &[f64],
+    om: &[f64],
+    steps: u64,
+    dt: f64,
+    links: &[usize],
+    drive: (Option<&Timed>, Option<&Pivot>),
+    stop: &Watch,
+    out: &mut [f64],
+) -> Result<()> {
     run_chunk_chain(chain, th, om, steps, dt, links, drive, stop, out)
 }
 
 #[allow(clippy::too_many_arguments)]
-fn run_chunk_chain_on(path: Path, chain: &Chain, th: &[f64], om: &[f64], steps: u64, dt: f64, links: &[usize], drive: (Option<&Timed>, Option<&Pivot>), stop: &Watch, out: &mut [f64]) -> Result<()> {
+fn run_chunk_chain_on(
+    path: Path,
+    chain: &Chain,
+    th: &[f64],
+    om: &[f64],
+    steps: u64,
+    dt: f64,
+    links: &[usize],
+    drive: (Option<&Timed>, Option<&Pivot>),
+    stop: &Watch,
+    out: &mut [f64],
+) -> Result<()> {
     assert!(path.available(), "the {} kernel needs a CPU feature this one lacks", path.name());
     match path {
         // SAFETY: the CPU has the feature (checked just above).
@@ -732,8 +785,8 @@ mod tests {
             }
             // A row's time does not depend on its neighbours: each row alone, from its middle on.
             for j in [0, 7, 100, 300] {
-                let one = first_flips_chain(&chain, &th[n * j..n * (j + 1)], &om[n * j..n * (j + 1)], 400, 0.01, None, (None, None), Path::best(), &go())
-                    .unwrap();
+                let one =
+                    first_flips_chain(&chain, &th[n * j..n * (j + 1)], &om[n * j..n * (j + 1)], 400, 0.01, None, (None, None), Path::best(), &go()).unwrap();
                 assert_eq!(one[0].to_bits(), reference[j].to_bits(), "row {j}");
             }
         }
@@ -757,7 +810,9 @@ mod tests {
                     assert!(got.iter().zip(&fast).all(|(a, b)| a.to_bits() == b.to_bits()), "{path:?}");
                 }
                 for j in [3, 200, 528] {
-                    let one = first_flips_chain(&chain, &th[n * j..n * (j + 1)], &om[n * j..n * (j + 1)], 300, 0.01, None, (Some(&timed), None), Path::best(), &go()).unwrap();
+                    let one =
+                        first_flips_chain(&chain, &th[n * j..n * (j + 1)], &om[n * j..n * (j + 1)], 300, 0.01, None, (Some(&timed), None), Path::best(), &go())
+                            .unwrap();
                     assert_eq!(one[0].to_bits(), fast[j].to_bits(), "row {j}");
                 }
             }
@@ -785,7 +840,9 @@ mod tests {
                     assert!(got.iter().zip(&fast).all(|(a, b)| a.to_bits() == b.to_bits()), "{path:?}");
                 }
                 for j in [3, 200, 528] {
-                    let one = first_flips_chain(&chain, &th[n * j..n * (j + 1)], &om[n * j..n * (j + 1)], 300, 0.01, None, (None, Some(&pivot)), Path::best(), &go()).unwrap();
+                    let one =
+                        first_flips_chain(&chain, &th[n * j..n * (j + 1)], &om[n * j..n * (j + 1)], 300, 0.01, None, (None, Some(&pivot)), Path::best(), &go())
+                            .unwrap();
                     assert_eq!(one[0].to_bits(), fast[j].to_bits(), "row {j}");
                 }
             }
@@ -795,8 +852,7 @@ mod tests {
     #[test]
     fn a_chain_that_blows_up_is_an_integration_error_with_its_time() {
         let chain = &chains_of(3)[0];
-        let e = first_flips_chain(chain, &[0.1; 6], &[0.0, 0.0, 0.0, 1e200, 0.0, 0.0], 100, 0.01, None, (None, None), Path::best(), &go())
-            .unwrap_err();
+        let e = first_flips_chain(chain, &[0.1; 6], &[0.0, 0.0, 0.0, 1e200, 0.0, 0.0], 100, 0.01, None, (None, None), Path::best(), &go()).unwrap_err();
         // Named as the scalar route names a blow-up, not as a singular mass matrix.
         assert!(matches!(&e, Error::Integration { reason, .. } if reason == NON_FINITE), "{e}");
     }
@@ -804,8 +860,7 @@ mod tests {
     #[test]
     fn a_blow_up_is_an_integration_error_not_a_silent_value() {
         let chain = Chain::new(&[1.0, 1.0], &[1.0, 1.0], None, None, 9.81).unwrap();
-        let e = first_flips_double(&chain, &[0.1, 0.1, 0.2, 0.2], &[0.0, 0.0, 1e200, 0.0], 100, 0.01, None, Path::best(), &go())
-            .unwrap_err();
+        let e = first_flips_double(&chain, &[0.1, 0.1, 0.2, 0.2], &[0.0, 0.0, 1e200, 0.0], 100, 0.01, None, Path::best(), &go()).unwrap_err();
         assert!(matches!(e, Error::Integration { .. }), "{e}");
         assert!(e.to_string().contains("non-finite"), "{e}");
     }

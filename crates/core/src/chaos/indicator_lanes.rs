@@ -12,10 +12,10 @@
 //! error that route reports.
 use super::indicators::{orthonormalise, run, Indicator};
 use crate::dynamics::base::Pivot;
+use crate::dynamics::lanes::LaneSingular;
 use crate::dynamics::lanes::{accelerations, add_loss_tangent, add_losses, add_pivot_forces, add_pivot_tangent, tangent, LaneScratch};
 use crate::dynamics::torque::{Builtin, Timed};
 use crate::error::Result;
-use crate::dynamics::lanes::LaneSingular;
 use crate::integrators::lanes::{LaneSystem, Rk4Lanes};
 use crate::model::Chain;
 use crate::par::*;
@@ -119,7 +119,16 @@ struct Job<'a> {
 
 impl<'a> Job<'a> {
     #[allow(clippy::too_many_arguments)]
-    fn new(chain: &'a Chain, (torque, pivot): (&'a Builtin, Option<&'a Pivot>), steps: u64, dt: f64, which: Indicator, start: &'a [f64], deviations: Option<&'a [f64]>, watch: &'a Watch) -> Self {
+    fn new(
+        chain: &'a Chain,
+        (torque, pivot): (&'a Builtin, Option<&'a Pivot>),
+        steps: u64,
+        dt: f64,
+        which: Indicator,
+        start: &'a [f64],
+        deviations: Option<&'a [f64]>,
+        watch: &'a Watch,
+    ) -> Self {
         let drive = Timed::generalized(torque);
         Job { chain, drive, torque, pivot, steps, dt, which, start, deviations, watch }
     }
@@ -163,7 +172,19 @@ impl<'a> Job<'a> {
                     // Some state failed: the per-state route gives the values or its error.
                     for j in 0..count {
                         let row = (&th[n * j..n * (j + 1)], &om[n * j..n * (j + 1)]);
-                        let value = run(self.chain, row.0, row.1, self.steps, self.dt, self.which, (self.torque, self.pivot), self.deviations, self.watch, false, &mut |_, _| {})?;
+                        let value = run(
+                            self.chain,
+                            row.0,
+                            row.1,
+                            self.steps,
+                            self.dt,
+                            self.which,
+                            (self.torque, self.pivot),
+                            self.deviations,
+                            self.watch,
+                            false,
+                            &mut |_, _| {},
+                        )?;
                         out.push(value);
                     }
                 }
@@ -280,7 +301,19 @@ impl Group {
         let (n, k, megno) = (chain.n(), which.vectors(), which == Indicator::Megno);
         let dim = 2 * n * (1 + k) + 2 * usize::from(megno);
         let lanes = |m| vec![[0.0; LANES]; m];
-        Group { n, k, megno, y: lanes(dim), rk: Rk4Lanes::with_dim(n, dim), tau: lanes(n), flow: lanes(n), scratch: LaneScratch::new(n), q: lanes(n), dq: lanes(n), trig: lanes(2 * n) }
+        Group {
+            n,
+            k,
+            megno,
+            y: lanes(dim),
+            rk: Rk4Lanes::with_dim(n, dim),
+            tau: lanes(n),
+            flow: lanes(n),
+            scratch: LaneScratch::new(n),
+            q: lanes(n),
+            dq: lanes(n),
+            trig: lanes(2 * n),
+        }
     }
 
     #[cfg(target_arch = "x86_64")]
@@ -325,7 +358,8 @@ impl Group {
             // Every step: a relaxed load against eight states' step (long chains take long).
             job.watch.check(t)?;
             let h = job.dt;
-            let mut sys = TangentLanes { chain, k, megno, tau, drive: job.drive.as_ref(), pivot: job.pivot, q: &mut q[..], dq: &mut dq[..], trig: &mut trig[..] };
+            let mut sys =
+                TangentLanes { chain, k, megno, tau, drive: job.drive.as_ref(), pivot: job.pivot, q: &mut q[..], dq: &mut dq[..], trig: &mut trig[..] };
             let stepped = rk.step_system(y, t, h, &active, &mut sys);
             match stepped {
                 Ok(nonfinite) if !nonfinite.iter().any(|&b| b) => {}
@@ -471,7 +505,10 @@ mod tests {
     fn reference_driven(chain: &Chain, th: &[f64], om: &[f64], steps: u64, dt: f64, which: Indicator, torque: &Builtin) -> Vec<f64> {
         let n = chain.n();
         (0..th.len() / n)
-            .map(|i| run(chain, &th[n * i..n * (i + 1)], &om[n * i..n * (i + 1)], steps, dt, which, (torque, None), None, &Watch::new(), false, &mut |_, _| {}).unwrap())
+            .map(|i| {
+                run(chain, &th[n * i..n * (i + 1)], &om[n * i..n * (i + 1)], steps, dt, which, (torque, None), None, &Watch::new(), false, &mut |_, _| {})
+                    .unwrap()
+            })
             .collect()
     }
 
@@ -551,7 +588,8 @@ mod tests {
         for which in [Indicator::Megno, Indicator::Ofli, Indicator::Gali(3)] {
             let batch = super::super::indicators::indicators(chain, &th, &om, 0.6, 0.005, which, (&Builtin::None, None), None, &Watch::new()).unwrap();
             for i in [0, 9] {
-                let alone = one(chain, &th[3 * i..3 * i + 3], &om[3 * i..3 * i + 3], 0.6, 0.005, which, (&Builtin::None, None), None, 7, &Watch::new()).unwrap();
+                let alone =
+                    one(chain, &th[3 * i..3 * i + 3], &om[3 * i..3 * i + 3], 0.6, 0.005, which, (&Builtin::None, None), None, 7, &Watch::new()).unwrap();
                 assert_eq!(alone.value.to_bits(), batch[i].to_bits(), "{which:?}, row {i}");
                 let mut want = Vec::new();
                 run(chain, &th[3 * i..3 * i + 3], &om[3 * i..3 * i + 3], 120, 0.005, which, (&Builtin::None, None), None, &Watch::new(), true, &mut |s, v| {
@@ -573,7 +611,9 @@ mod tests {
         let chain = &chains()[2];
         let (th, om) = rows(3, 70);
         let start = super::super::indicators::initial_deviations(6, 1);
-        let go = |th: &[f64], om: &[f64], path| indicators(chain, th, om, 100, 0.01, Indicator::Megno, (&Builtin::None, None), &start, None, path, &Watch::new()).unwrap();
+        let go = |th: &[f64], om: &[f64], path| {
+            indicators(chain, th, om, 100, 0.01, Indicator::Megno, (&Builtin::None, None), &start, None, path, &Watch::new()).unwrap()
+        };
         let reference = go(&th, &om, Path::Portable);
         for path in Path::ALL.into_iter().filter(|p| p.available()) {
             assert_eq!(go(&th, &om, path), reference, "{path:?}");
@@ -587,18 +627,34 @@ mod tests {
         let chain = &chains()[1];
         let (th, mut om) = rows(2, 10);
         let start = super::super::indicators::initial_deviations(4, 1);
-        let go = |th: &[f64], om: &[f64]| indicators(chain, th, om, 200, 0.01, Indicator::Fli, (&Builtin::None, None), &start, None, Path::best(), &Watch::new());
+        let go =
+            |th: &[f64], om: &[f64]| indicators(chain, th, om, 200, 0.01, Indicator::Fli, (&Builtin::None, None), &start, None, Path::best(), &Watch::new());
         om[2 * 3] = 1e155; // row 3 overflows
         let e = go(&th, &om).unwrap_err();
-        let scalar = run(chain, &th[6..8], &om[6..8], 200, 0.01, Indicator::Fli, (&Builtin::None, None), None, &Watch::new(), false, &mut |_, _| {}).unwrap_err();
+        let scalar =
+            run(chain, &th[6..8], &om[6..8], 200, 0.01, Indicator::Fli, (&Builtin::None, None), None, &Watch::new(), false, &mut |_, _| {}).unwrap_err();
         assert!(matches!(e, Error::Integration { .. }), "{e}");
         assert_eq!(e.to_string(), scalar.to_string());
         // A group the lanes cannot finish (here: started from a zero vector, which collapses)
         // takes the per-state route, whose values it returns.
         let dev = [1.0, 0.0, 0.0, 0.0];
-        let got = indicators(chain, &th[..4], &om[..4], 10, 0.01, Indicator::Fli, (&Builtin::None, None), &[0.0; 4], Some(&dev), Path::best(), &Watch::new()).unwrap();
+        let got = indicators(chain, &th[..4], &om[..4], 10, 0.01, Indicator::Fli, (&Builtin::None, None), &[0.0; 4], Some(&dev), Path::best(), &Watch::new())
+            .unwrap();
         for (i, g) in got.iter().enumerate() {
-            let want = run(chain, &th[2 * i..2 * i + 2], &om[2 * i..2 * i + 2], 10, 0.01, Indicator::Fli, (&Builtin::None, None), Some(&dev), &Watch::new(), false, &mut |_, _| {}).unwrap();
+            let want = run(
+                chain,
+                &th[2 * i..2 * i + 2],
+                &om[2 * i..2 * i + 2],
+                10,
+                0.01,
+                Indicator::Fli,
+                (&Builtin::None, None),
+                Some(&dev),
+                &Watch::new(),
+                false,
+                &mut |_, _| {},
+            )
+            .unwrap();
             assert_eq!(g.to_bits(), want.to_bits());
         }
     }

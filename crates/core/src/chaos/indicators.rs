@@ -21,8 +21,8 @@
 //! results are reproducible) unless given, and are renormalised after every step (their
 //! directions, all the indicators see, are unchanged by it).
 use super::{check_steps, Tangent};
-use crate::dynamics::system::{OdeSystem, NON_FINITE};
 use crate::dynamics::base::{Drive, Pivot};
+use crate::dynamics::system::{OdeSystem, NON_FINITE};
 use crate::dynamics::torque::Builtin;
 use crate::error::{check_finite, Error, Result};
 use crate::integrators::Rk4;
@@ -233,7 +233,9 @@ pub fn indicator(
         chain.check_state("theta0", theta0)?;
         chain.check_state("omega0", omega0)?;
         let start = start_vectors(2 * chain.n(), which.vectors(), deviations)?;
-        value = super::indicator_lanes::indicator(chain, theta0, omega0, steps, dt, which, (torque, pivot), &start, path, watch, &mut |step, v| keep(&mut series, step, v))?;
+        value = super::indicator_lanes::indicator(chain, theta0, omega0, steps, dt, which, (torque, pivot), &start, path, watch, &mut |step, v| {
+            keep(&mut series, step, v)
+        })?;
     }
     let value = match value {
         Some(v) => v,
@@ -283,7 +285,19 @@ pub fn indicators(
             // A stopped batch skips its remaining rows at once (a row's run looks only every
             // 64 steps, which with a pivot function take a while each).
             watch.check(0.0)?;
-            let r = run(chain, &theta0[i * n..(i + 1) * n], &omega0[i * n..(i + 1) * n], steps, dt, which, (torque, pivot), deviations, watch, false, &mut |_, _| {});
+            let r = run(
+                chain,
+                &theta0[i * n..(i + 1) * n],
+                &omega0[i * n..(i + 1) * n],
+                steps,
+                dt,
+                which,
+                (torque, pivot),
+                deviations,
+                watch,
+                false,
+                &mut |_, _| {},
+            );
             watch.add_units(1);
             r
         })
@@ -459,7 +473,9 @@ mod tests {
     fn bad_requests_are_refused_by_name() {
         let chain = Chain::new(&[1.0, 1.0], &[1.0, 1.0], None, None, 9.81).unwrap();
         let w = Watch::new();
-        let e = |which, dev: Option<&[f64]>| indicator(&chain, &[1.0, 0.0], &[0.0; 2], 1.0, 0.01, which, (&Builtin::None, None), dev, 1, &w).unwrap_err().to_string();
+        let e = |which, dev: Option<&[f64]>| {
+            indicator(&chain, &[1.0, 0.0], &[0.0; 2], 1.0, 0.01, which, (&Builtin::None, None), dev, 1, &w).unwrap_err().to_string()
+        };
         assert_eq!(e(Indicator::Gali(5), None), "GALI's order k must be between 2 and 2N = 4, got 5");
         assert_eq!(e(Indicator::Gali(1), None), "GALI's order k must be between 2 and 2N = 4, got 1");
         assert_eq!(e(Indicator::Sali, Some(&[1.0; 4])), "deviations must have shape (2, 2N = 4), got 4 values");

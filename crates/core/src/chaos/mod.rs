@@ -83,7 +83,16 @@ impl<'c> Tangent<'c> {
             let d_v = if cart { d[2 * n + 1] } else { 0.0 };
             let d_a = self
                 .chain
-                .tangent_general(theta, omega, (&head[n..2 * n], r.cart), &load, (&d[..n], &d[n..2 * n], d_v), &mut dd[n..2 * n], &mut self.scratch, &mut self.ws)
+                .tangent_general(
+                    theta,
+                    omega,
+                    (&head[n..2 * n], r.cart),
+                    &load,
+                    (&d[..n], &d[n..2 * n], d_v),
+                    &mut dd[n..2 * n],
+                    &mut self.scratch,
+                    &mut self.ws,
+                )
                 .map_err(fail)?;
             if cart {
                 dd[2 * n] = d_v;
@@ -328,11 +337,7 @@ pub fn certified_flips(
     }
     let coarse = first_flips(chain, theta0, omega0, t_max, dt, link, torque, pivot, watch)?;
     let fine = first_flips(chain, theta0, omega0, t_max, 0.5 * dt, link, torque, pivot, watch)?;
-    let uncertain = coarse
-        .iter()
-        .zip(&fine)
-        .map(|(&a, &b)| a.is_finite() != b.is_finite() || (a.is_finite() && (a - b).abs() > tolerance))
-        .collect();
+    let uncertain = coarse.iter().zip(&fine).map(|(&a, &b)| a.is_finite() != b.is_finite() || (a.is_finite() && (a - b).abs() > tolerance)).collect();
     Ok(Certified { times: coarse, uncertain, tolerance })
 }
 
@@ -375,9 +380,7 @@ pub const MAX_STEPS: f64 = 1e9;
 
 pub(crate) fn check_steps(steps: f64, what: &str) -> Result<()> {
     if steps > MAX_STEPS {
-        return Err(Error::input(format!(
-            "{what} = {steps:.3e} steps per trajectory, more than {MAX_STEPS:.0e}; use a larger dt or a shorter time"
-        )));
+        return Err(Error::input(format!("{what} = {steps:.3e} steps per trajectory, more than {MAX_STEPS:.0e}; use a larger dt or a shorter time")));
     }
     Ok(())
 }

@@ -14,11 +14,20 @@ use crate::trig::lanes::{each, sin_cos, Lane, LANES};
 pub enum Axis {
     Fixed(f64),
     /// `offset + amplitude sin(frequency t + phase)`, frequency in rad/s.
-    Sinusoid { amplitude: f64, frequency: f64, phase: f64, offset: f64 },
+    Sinusoid {
+        amplitude: f64,
+        frequency: f64,
+        phase: f64,
+        offset: f64,
+    },
     /// The natural cubic spline through `(t_k, x_k)` (second derivatives `m_k`), continued by
     /// its end tangents outside the table: twice continuously differentiable everywhere, since a
     /// natural spline has no curvature at its ends.
-    Spline { t: Vec<f64>, x: Vec<f64>, m: Vec<f64> },
+    Spline {
+        t: Vec<f64>,
+        x: Vec<f64>,
+        m: Vec<f64>,
+    },
     /// A callback returning `(position, velocity, acceleration)` at `t`.
     Function(Arc<dyn AxisFn>),
 }
@@ -62,9 +71,7 @@ impl Axis {
     pub fn spline(name: &str, t: Vec<f64>, x: Vec<f64>) -> Result<Self> {
         let k = t.len();
         if k < 2 {
-            return Err(Error::input(format!(
-                "pivot {name}: a cubic table needs at least 2 samples, got {k}"
-            )));
+            return Err(Error::input(format!("pivot {name}: a cubic table needs at least 2 samples, got {k}")));
         }
         if x.len() != k {
             return Err(Error::input(format!("pivot {name}: values must have {k} entries (one per time), got {}", x.len())));
@@ -97,8 +104,7 @@ impl Axis {
                     // The end tangent (the second derivative is zero there).
                     let (j, end) = if t <= times[0] { (0, 0) } else { (k - 2, k - 1) };
                     let h = times[j + 1] - times[j];
-                    let slope = (x[j + 1] - x[j]) / h
-                        + if end == 0 { -(2.0 * m[j] + m[j + 1]) * h / 6.0 } else { (m[j] + 2.0 * m[j + 1]) * h / 6.0 };
+                    let slope = (x[j + 1] - x[j]) / h + if end == 0 { -(2.0 * m[j] + m[j + 1]) * h / 6.0 } else { (m[j] + 2.0 * m[j + 1]) * h / 6.0 };
                     return Ok([x[end] + slope * (t - times[end]), slope, 0.0]);
                 }
                 let j = times.partition_point(|&s| s <= t) - 1;
@@ -249,9 +255,7 @@ impl Drive {
             return Err(Error::input("cart_force needs a chain with a cart (Chain(..., cart=Cart(mass)))"));
         }
         if chain.cart().is_some() && self.moving_pivot().is_some() {
-            return Err(Error::input(
-                "a chain on a cart has no prescribed pivot motion: the cart moves the base (drive it with cart_force)",
-            ));
+            return Err(Error::input("a chain on a cart has no prescribed pivot motion: the cart moves the base (drive it with cart_force)"));
         }
         Ok(())
     }

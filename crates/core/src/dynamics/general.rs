@@ -218,7 +218,16 @@ impl Chain {
     #[cfg(target_arch = "x86_64")]
     #[allow(clippy::too_many_arguments)]
     #[target_feature(enable = "avx2,fma")]
-    unsafe fn accelerations_general_double_fma(&self, theta: &[f64], omega: &[f64], cart_v: f64, tau: &[f64], load: &Load, out: &mut [f64], ws: &mut Workspace) -> Result<Rates, Singular> {
+    unsafe fn accelerations_general_double_fma(
+        &self,
+        theta: &[f64],
+        omega: &[f64],
+        cart_v: f64,
+        tau: &[f64],
+        load: &Load,
+        out: &mut [f64],
+        ws: &mut Workspace,
+    ) -> Result<Rates, Singular> {
         self.accelerations_general_double::<true>(theta, omega, cart_v, tau, load, out, ws)
     }
 
@@ -228,23 +237,26 @@ impl Chain {
     /// `FMA`: the copy for AVX2 + FMA, the angles' sin/cos pair inline.
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
-    fn accelerations_general_double<const FMA: bool>(&self, theta: &[f64], omega: &[f64], cart_v: f64, tau: &[f64], load: &Load, out: &mut [f64], ws: &mut Workspace) -> Result<Rates, Singular> {
+    fn accelerations_general_double<const FMA: bool>(
+        &self,
+        theta: &[f64],
+        omega: &[f64],
+        cart_v: f64,
+        tau: &[f64],
+        load: &Load,
+        out: &mut [f64],
+        ws: &mut Workspace,
+    ) -> Result<Rates, Singular> {
         let (d1, d2, h1, h2) = (self.diag[0], self.diag[1], self.h[0], self.h[1]);
         let k = self.lengths[0] * h2;
         // Inline, so that the copy compiled for FMA runs the kernel's `mul_add` as instructions.
-        let [(s1, c1), (s2, c2)] = if FMA {
-            crate::trig::lanes::sin_cos_pair_within(theta[0], theta[1])
-        } else {
-            crate::trig::lanes::sin_cos_pair(theta[0], theta[1])
-        };
+        let [(s1, c1), (s2, c2)] =
+            if FMA { crate::trig::lanes::sin_cos_pair_within(theta[0], theta[1]) } else { crate::trig::lanes::sin_cos_pair(theta[0], theta[1]) };
         (ws.sin[0], ws.cos[0], ws.sin[1], ws.cos[1]) = (s1, c1, s2, c2);
         let (s12, c12) = (s1 * c2 - c1 * s2, c1 * c2 + s1 * s2);
         let [gx, gy] = load.gravity;
         let (w1, w2) = (omega[0], omega[1]);
-        let mut r = [
-            tau[0] + h1 * (gx * c1 + gy * s1) - k * s12 * w2 * w2,
-            tau[1] + h2 * (gx * c2 + gy * s2) + k * s12 * w1 * w1,
-        ];
+        let mut r = [tau[0] + h1 * (gx * c1 + gy * s1) - k * s12 * w2 * w2, tau[1] + h2 * (gx * c2 + gy * s2) + k * s12 * w1 * w1];
         let losses = if self.lossy_joints() { self.add_losses(&omega[..2], &mut r) } else { 0.0 };
         let kc = k * c12;
         let det = d1 * d2 - kc * kc;
@@ -696,9 +708,8 @@ mod tests {
             };
             let (w0, _, r0) = ham(0.0, &mut ws);
             let (mut d_om, mut d_pd) = ([0.0; 3], [0.0; 3]);
-            let (d_v, d_pxd) = chain
-                .hamilton_tangent(&theta, (&w0, r0.cart), load.gravity, (&dth, &dp, dpx), &mut d_om, &mut d_pd, &mut scratch, &mut ws)
-                .unwrap();
+            let (d_v, d_pxd) =
+                chain.hamilton_tangent(&theta, (&w0, r0.cart), load.gravity, (&dth, &dp, dpx), &mut d_om, &mut d_pd, &mut scratch, &mut ws).unwrap();
             let ((tp, pp, rp), (tm, pm, rm)) = (ham(e, &mut ws), ham(-e, &mut ws));
             for i in 0..n {
                 let (f1, f2) = ((tp[i] - tm[i]) / (2.0 * e), (pp[i] - pm[i]) / (2.0 * e));

@@ -27,14 +27,7 @@ pub struct LaneScratch {
 impl LaneScratch {
     pub fn new(n: usize) -> Self {
         let z = vec![[0.0; LANES]; n];
-        LaneScratch {
-            sin: z.clone(),
-            cos: z.clone(),
-            ux: z.clone(),
-            uy: z.clone(),
-            dinv: z,
-            known: false,
-        }
+        LaneScratch { sin: z.clone(), cos: z.clone(), ux: z.clone(), uy: z.clone(), dinv: z, known: false }
     }
 
     /// The angles' `sin` and `cos`, computed once for the forces of a moving pivot and the
@@ -149,20 +142,11 @@ fn double(
     active: &Lane,
     cart: Option<CartLanes>,
 ) -> Result<(), LaneSingular> {
-    let (d1, d2, h1, h2, g) = (
-        chain.diag[0],
-        chain.diag[1],
-        chain.h[0],
-        chain.h[1],
-        chain.g,
-    );
+    let (d1, d2, h1, h2, g) = (chain.diag[0], chain.diag[1], chain.h[0], chain.h[1], chain.g);
     let k = chain.lengths[0] * h2;
     let tol = PIVOT_TOL * d1 * d2;
-    let ((s1, c1), (s2, c2)) = if std::mem::take(&mut s.known) {
-        ((s.sin[0], s.cos[0]), (s.sin[1], s.cos[1]))
-    } else {
-        (sin_cos(&theta[0]), sin_cos(&theta[1]))
-    };
+    let ((s1, c1), (s2, c2)) =
+        if std::mem::take(&mut s.known) { ((s.sin[0], s.cos[0]), (s.sin[1], s.cos[1])) } else { (sin_cos(&theta[0]), sin_cos(&theta[1])) };
     // Kept for the tangent ([`tangent`]) at the same angles.
     (s.sin[0], s.cos[0], s.sin[1], s.cos[1]) = (s1, c1, s2, c2);
     let mut worst = [-1.0f64; LANES];
@@ -216,12 +200,7 @@ fn recursion(
     cart: Option<CartLanes>,
 ) -> Result<(), LaneSingular> {
     let n = theta.len();
-    let (l, h, d, g) = (
-        &chain.lengths[..n],
-        &chain.h[..n],
-        &chain.diag[..n],
-        chain.g,
-    );
+    let (l, h, d, g) = (&chain.lengths[..n], &chain.h[..n], &chain.diag[..n], chain.g);
     if !std::mem::take(&mut s.known) {
         for a in 0..n {
             (s.sin[a], s.cos[a]) = sin_cos(&theta[a]);
@@ -242,13 +221,7 @@ fn recursion(
     }
     // Backward elimination, with the links below folded in.
     let (mut cd, mut sd) = ([0.0; LANES], [0.0; LANES]);
-    let (mut gxx, mut gxy, mut gyy, mut wx, mut wy) = (
-        [0.0; LANES],
-        [0.0; LANES],
-        [0.0; LANES],
-        [0.0; LANES],
-        [0.0; LANES],
-    );
+    let (mut gxx, mut gxy, mut gyy, mut wx, mut wy) = ([0.0; LANES], [0.0; LANES], [0.0; LANES], [0.0; LANES], [0.0; LANES]);
     // Per lane, the first link (from the bottom) whose pivot failed, or -1: kept without a branch
     // per link, so the passes stay vectorised.
     let mut worst = [-1.0f64; LANES];
@@ -317,16 +290,7 @@ fn recursion(
 /// one pass up and one down; the double pendulum in closed form. Agrees with it to round-off.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-pub fn tangent(
-    chain: &Chain,
-    omega: &[Lane],
-    accel: &[Lane],
-    d_theta: &[Lane],
-    d_omega: &[Lane],
-    extra: Option<&[Lane]>,
-    out: &mut [Lane],
-    s: &LaneScratch,
-) {
+pub fn tangent(chain: &Chain, omega: &[Lane], accel: &[Lane], d_theta: &[Lane], d_omega: &[Lane], extra: Option<&[Lane]>, out: &mut [Lane], s: &LaneScratch) {
     if chain.n() == 2 {
         return tangent_double(chain, omega, accel, d_theta, d_omega, extra, out, s);
     }
@@ -594,14 +558,7 @@ mod tests {
             Chain::new(&[0.8], &[1.5], None, None, 9.81).unwrap(),
             Chain::new(&[1.0, 0.7], &[1.0, 2.0], None, None, 9.81).unwrap(),
             Chain::rods(&[1.0, 0.5, 0.8], &[1.0, 0.3, 2.0], 9.81).unwrap(),
-            Chain::new(
-                &[0.4; 7],
-                &[1.0, 0.5, 2.0, 1.0, 0.1, 3.0, 1.0],
-                Some(&[0.2; 7]),
-                Some(&[0.01; 7]),
-                9.81,
-            )
-            .unwrap(),
+            Chain::new(&[0.4; 7], &[1.0, 0.5, 2.0, 1.0, 0.1, 3.0, 1.0], Some(&[0.2; 7]), Some(&[0.01; 7]), 9.81).unwrap(),
         ] {
             let n = chain.n();
             let mut th = vec![[0.0; LANES]; n];
@@ -632,19 +589,12 @@ mod tests {
             for i in 0..LANES {
                 let col = |v: &[Lane]| v.iter().map(|l| l[i]).collect::<Vec<f64>>();
                 let mut want = vec![0.0; n];
-                chain
-                    .accelerations_into(&col(&th), &col(&om), &col(&tau), &mut want, &mut ws)
-                    .unwrap();
+                chain.accelerations_into(&col(&th), &col(&om), &col(&tau), &mut want, &mut ws).unwrap();
                 for a in 0..n {
-                    assert!(
-                        (out[a][i] - want[a]).abs() <= 1e-12 * (1.0 + want[a].abs()),
-                        "N = {n}, lane {i}, link {a}"
-                    );
+                    assert!((out[a][i] - want[a]).abs() <= 1e-12 * (1.0 + want[a].abs()), "N = {n}, lane {i}, link {a}");
                 }
                 let (mut want_tan, mut sc) = (vec![0.0; n], vec![0.0; 6 * n]);
-                chain
-                    .tangent_accelerations_into(&col(&th), &col(&om), &want, &col(&dth), &col(&dom), &mut want_tan, &mut sc, &mut ws)
-                    .unwrap();
+                chain.tangent_accelerations_into(&col(&th), &col(&om), &want, &col(&dth), &col(&dom), &mut want_tan, &mut sc, &mut ws).unwrap();
                 for a in 0..n {
                     assert!(
                         (tan[a][i] - want_tan[a]).abs() <= 1e-12 * (1.0 + want_tan[a].abs()),
@@ -698,9 +648,7 @@ mod tests {
                 let mut want = vec![0.0; n];
                 let rates = chain.accelerations_general(&col(&th), &col(&om), 0.0, &vec![0.0; n], &still, &mut want, &mut ws).unwrap();
                 let (mut want_tan, mut sc) = (vec![0.0; n], vec![0.0; 8 * n]);
-                chain
-                    .tangent_general(&col(&th), &col(&om), (&want, 0.0), &still, (&col(&dth), &col(&dom), 0.0), &mut want_tan, &mut sc, &mut ws)
-                    .unwrap();
+                chain.tangent_general(&col(&th), &col(&om), (&want, 0.0), &still, (&col(&dth), &col(&dom), 0.0), &mut want_tan, &mut sc, &mut ws).unwrap();
                 let close = |a: f64, b: f64| (a - b).abs() <= 1e-12 * (1.0 + b.abs());
                 assert!(close(power[i], rates.losses), "N = {n}, lane {i}: power {} vs {}", power[i], rates.losses);
                 for a in 0..n {

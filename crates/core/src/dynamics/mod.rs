@@ -153,14 +153,7 @@ impl Chain {
 
     /// `theta_ddot` for generalized torques `tau` (conjugate to the absolute angles). O(N).
     #[inline]
-    pub fn accelerations_into(
-        &self,
-        theta: &[f64],
-        omega: &[f64],
-        tau: &[f64],
-        out: &mut [f64],
-        ws: &mut Workspace,
-    ) -> Result<(), Singular> {
+    pub fn accelerations_into(&self, theta: &[f64], omega: &[f64], tau: &[f64], out: &mut [f64], ws: &mut Workspace) -> Result<(), Singular> {
         match self.n() {
             2 => self.accelerations_double(theta, omega, tau, out, ws),
             _ => self.accelerations_impl(theta, omega, tau, out, ws),
@@ -203,11 +196,8 @@ impl Chain {
         let (d1, d2, h1, h2, g) = (self.diag[0], self.diag[1], self.h[0], self.h[1], self.g);
         let k = self.lengths[0] * h2;
         // Inline, so that the copy compiled for FMA runs the kernel's `mul_add` as instructions.
-        let [(s1, c1), (s2, c2)] = if FMA {
-            crate::trig::lanes::sin_cos_pair_within(theta[0], theta[1])
-        } else {
-            crate::trig::lanes::sin_cos_pair(theta[0], theta[1])
-        };
+        let [(s1, c1), (s2, c2)] =
+            if FMA { crate::trig::lanes::sin_cos_pair_within(theta[0], theta[1]) } else { crate::trig::lanes::sin_cos_pair(theta[0], theta[1]) };
         (ws.sin[0], ws.cos[0], ws.sin[1], ws.cos[1]) = (s1, c1, s2, c2);
         let (s12, c12) = (s1 * c2 - c1 * s2, c1 * c2 + s1 * s2);
         let r1 = tau[0] - g * h1 * s1 - k * s12 * omega[1] * omega[1];
@@ -225,14 +215,7 @@ impl Chain {
     }
 
     #[inline(always)]
-    pub(crate) fn accelerations_impl(
-        &self,
-        theta: &[f64],
-        omega: &[f64],
-        tau: &[f64],
-        out: &mut [f64],
-        ws: &mut Workspace,
-    ) -> Result<(), Singular> {
+    pub(crate) fn accelerations_impl(&self, theta: &[f64], omega: &[f64], tau: &[f64], out: &mut [f64], ws: &mut Workspace) -> Result<(), Singular> {
         let n = theta.len();
         let (l, h, g) = (&self.lengths[..n], &self.h[..n], self.g);
         let (omega, tau, out) = (&omega[..n], &tau[..n], &mut out[..n]);

@@ -8,9 +8,7 @@ fn dense_rhs(chain: &Chain, theta: &[f64], omega: &[f64], tau: &[f64]) -> Vec<f6
     let n = chain.n();
     (0..n)
         .map(|a| {
-            let coriolis: f64 = (0..n)
-                .map(|b| chain.coupling(a, b) * (theta[a] - theta[b]).sin() * omega[b] * omega[b])
-                .sum();
+            let coriolis: f64 = (0..n).map(|b| chain.coupling(a, b) * (theta[a] - theta[b]).sin() * omega[b] * omega[b]).sum();
             tau[a] - chain.g * chain.h[a] * theta[a].sin() - coriolis
         })
         .collect()
@@ -149,8 +147,7 @@ pub fn accelerations_cramer(chain: &Chain, theta: &[f64], omega: &[f64], tau: &[
             .map(|a| {
                 let pull: f64 = (a..n)
                     .map(|i| {
-                        let centripetal: f64 =
-                            (0..=i).map(|j| l[j] * omega[j] * omega[j] * (theta[a] - theta[j]).sin()).sum();
+                        let centripetal: f64 = (0..=i).map(|j| l[j] * omega[j] * omega[j] * (theta[a] - theta[j]).sin()).sum();
                         ms[i] * (g * theta[a].sin() + centripetal)
                     })
                     .sum();
@@ -259,8 +256,7 @@ mod tests {
             chain.tangent_accelerations_into(&theta, &omega, &acc, &dth, &dom, &mut tangent, &mut scratch, &mut ws).unwrap();
             let e = 1e-5;
             let shift = |sign: f64| -> (Vec<f64>, Vec<f64>) {
-                (theta.iter().zip(&dth).map(|(t, d)| t + sign * e * d).collect(),
-                 omega.iter().zip(&dom).map(|(w, d)| w + sign * e * d).collect())
+                (theta.iter().zip(&dth).map(|(t, d)| t + sign * e * d).collect(), omega.iter().zip(&dom).map(|(w, d)| w + sign * e * d).collect())
             };
             let (tp, wp) = shift(1.0);
             let (tm, wm) = shift(-1.0);

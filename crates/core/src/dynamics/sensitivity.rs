@@ -42,25 +42,13 @@ pub enum Input {
 impl Input {
     /// The inputs' names, in this order (Python and the docs read them).
     pub const NAMES: [&'static str; 9] = ["theta0", "omega0", "lengths", "masses", "com", "inertia", "g", "damping", "friction"];
-    const ALL: [Input; 9] = [
-        Input::Theta0,
-        Input::Omega0,
-        Input::Lengths,
-        Input::Masses,
-        Input::Com,
-        Input::Inertia,
-        Input::G,
-        Input::Damping,
-        Input::Friction,
-    ];
+    const ALL: [Input; 9] =
+        [Input::Theta0, Input::Omega0, Input::Lengths, Input::Masses, Input::Com, Input::Inertia, Input::G, Input::Damping, Input::Friction];
 
     pub fn parse(name: &str) -> Result<Self> {
         match Self::NAMES.iter().position(|&s| s == name) {
             Some(i) => Ok(Self::ALL[i]),
-            None => Err(Error::input(format!(
-                "unknown sensitivity {name:?}: the inputs are {}",
-                Self::NAMES.map(|s| format!("\"{s}\"")).join(", ")
-            ))),
+            None => Err(Error::input(format!("unknown sensitivity {name:?}: the inputs are {}", Self::NAMES.map(|s| format!("\"{s}\"")).join(", ")))),
         }
     }
 
@@ -476,15 +464,7 @@ impl Chain {
     /// [`Chain::solve_factored_many`] for the `B` columns from `first` on; `cart`: the cart's
     /// articulated inertia, if there is a cart.
     #[inline(always)]
-    fn solve_block<const B: usize>(
-        &self,
-        ws: &Workspace,
-        cart: Option<f64>,
-        xs: &mut [f64],
-        (stride, off): (usize, usize),
-        first: usize,
-        rows: &mut [f64],
-    ) {
+    fn solve_block<const B: usize>(&self, ws: &Workspace, cart: Option<f64>, xs: &mut [f64], (stride, off): (usize, usize), first: usize, rows: &mut [f64]) {
         let n = self.n();
         let (l, s, c) = (&self.lengths[..n], &ws.sin[..n], &ws.cos[..n]);
         let (u, dinv) = (&ws.u[..n], &ws.dinv[..n]);
@@ -895,10 +875,8 @@ impl Columns {
                     let (col, o) = (&cols[c * m..(c + 1) * m], &mut out[c * m..(c + 1) * m]);
                     let (dt1, dt2, dw1, dw2) = (col[0], col[1], col[2], col[3]);
                     let d12 = dt1 - dt2;
-                    let mut r = [
-                        g1 * dt1 - (kw2 * d12 + k * s12 * (2.0 * w2 * dw2 - a2 * d12)),
-                        g2 * dt2 + (kw1 * d12 + k * s12 * (2.0 * w1 * dw1 + a1 * d12)),
-                    ];
+                    let mut r =
+                        [g1 * dt1 - (kw2 * d12 + k * s12 * (2.0 * w2 * dw2 - a2 * d12)), g2 * dt2 + (kw1 * d12 + k * s12 * (2.0 * w1 * dw1 + a1 * d12))];
                     if lossy {
                         chain.add_loss_tangent(&y[2..4], &col[2..4], &mut r);
                     }
@@ -912,8 +890,7 @@ impl Columns {
                         let (dv, (db1, db2)) = (col[5], db(dh1, dh2, dt1, dt2));
                         r[0] -= db1 * xdd;
                         r[1] -= db2 * xdd;
-                        rx = (dh1 * s1 + h1 * c1 * dt1) * w1 * w1 + 2.0 * h1 * s1 * w1 * dw1 + (dh2 * s2 + h2 * c2 * dt2) * w2 * w2
-                            + 2.0 * h2 * s2 * w2 * dw2
+                        rx = (dh1 * s1 + h1 * c1 * dt1) * w1 * w1 + 2.0 * h1 * s1 * w1 * dw1 + (dh2 * s2 + h2 * c2 * dt2) * w2 * w2 + 2.0 * h2 * s2 * w2 * dw2
                             - damping * dv
                             - (db1 * a1 + db2 * a2 + dtotal * xdd);
                         o[4] = dv;
@@ -939,10 +916,7 @@ impl Columns {
                     // (with a cart, `p_a` has `b_a v` and `p_x = total v + b . omega`).
                     let dpx = if cart.is_some() { col[5] } else { 0.0 };
                     let ([dw1, dw2], dv) = solve(
-                        [
-                            dp1 + ks * d12 * w2 - (dd1 * w1 + dk * c12 * w2) - db1 * v,
-                            dp2 + ks * d12 * w1 - (dk * c12 * w1 + dd2 * w2) - db2 * v,
-                        ],
+                        [dp1 + ks * d12 * w2 - (dd1 * w1 + dk * c12 * w2) - db1 * v, dp2 + ks * d12 * w1 - (dk * c12 * w1 + dd2 * w2) - db2 * v],
                         dpx - (db1 * w1 + db2 * w2 + dtotal * v),
                     );
                     let q = k * (c12 * d12 * ww + s12 * (dw1 * w2 + w1 * dw2));
@@ -1415,7 +1389,17 @@ mod tests {
                 let zero = vec![0.0; n];
                 let (mut d_om, mut d_pd, mut scratch) = (vec![0.0; n], vec![0.0; n], vec![0.0; 8 * n]);
                 let (dv, _) = chain
-                    .hamilton_tangent_forced(&theta, (&omega, v), load.gravity, (&zero, &zero, 0.0), Some((&dp, dpx, &dpdot)), &mut d_om, &mut d_pd, &mut scratch, &mut ws)
+                    .hamilton_tangent_forced(
+                        &theta,
+                        (&omega, v),
+                        load.gravity,
+                        (&zero, &zero, 0.0),
+                        Some((&dp, dpx, &dpdot)),
+                        &mut d_om,
+                        &mut d_pd,
+                        &mut scratch,
+                        &mut ws,
+                    )
                     .unwrap();
                 let eps = 1e-6;
                 let (hi, lo) = (eval(&moved(&chain, q, eps)), eval(&moved(&chain, q, -eps)));

@@ -101,9 +101,7 @@ impl Form {
     pub const ALL: [Form; 2] = [Form::Lagrangian, Form::Hamiltonian];
 
     pub fn parse(name: &str) -> Result<Self> {
-        Self::ALL.into_iter().find(|f| f.name() == name).ok_or_else(|| {
-            Error::input(format!("form must be \"lagrangian\" or \"hamiltonian\", got {name:?}"))
-        })
+        Self::ALL.into_iter().find(|f| f.name() == name).ok_or_else(|| Error::input(format!("form must be \"lagrangian\" or \"hamiltonian\", got {name:?}")))
     }
 }
 
@@ -179,7 +177,9 @@ impl<C: Borrow<Chain>, T: TorqueSource> ChainSystem<C, T> {
         if self.layout != before {
             self.drive = old;
             self.arrange();
-            return Err(Error::input("the new drive changes what the run's state holds (a moving pivot or a cart force that appears or goes): start a new run"));
+            return Err(Error::input(
+                "the new drive changes what the run's state holds (a moving pivot or a cart force that appears or goes): start a new run",
+            ));
         }
         Ok(())
     }
@@ -206,14 +206,8 @@ impl<C: Borrow<Chain>, T: TorqueSource> ChainSystem<C, T> {
         let chain: &Chain = self.chain.borrow();
         let n = chain.n();
         let pivot = self.drive.moving_pivot().is_some();
-        self.layout = Layout {
-            n,
-            cart: chain.cart().is_some(),
-            torque: self.torque.active(),
-            pivot,
-            force: self.drive.force.is_some(),
-            losses: chain.dissipative(),
-        };
+        self.layout =
+            Layout { n, cart: chain.cart().is_some(), torque: self.torque.active(), pivot, force: self.drive.force.is_some(), losses: chain.dissipative() };
         self.general = !chain.is_ideal() || pivot;
         let l = self.layout;
         self.slots = Slots { cart: l.cart(), torque: l.torque_work(), pivot: l.pivot_work(), force: l.force_work(), dissipated: l.dissipated() };
@@ -449,9 +443,7 @@ impl<C: Borrow<Chain>, T: TorqueSource> ChainSystem<C, T> {
                         f64::from(u8::from(j == 2 * n + 1))
                     };
                     let (dth, dp) = dir.split_at(n);
-                    let (dv, dpxd) = chain
-                        .hamilton_tangent(theta, (omega, v), load.gravity, (dth, dp, dpx), col, &mut d_pdot, tangent, ws)
-                        .map_err(fail)?;
+                    let (dv, dpxd) = chain.hamilton_tangent(theta, (omega, v), load.gravity, (dth, dp, dpx), col, &mut d_pdot, tangent, ws).map_err(fail)?;
                     for i in 0..n {
                         out[i * dim + j] = col[i];
                         out[(n + i) * dim + j] = d_pdot[i];
@@ -512,9 +504,7 @@ impl<C: Borrow<Chain>, T: TorqueSource> OdeSystem for ChainSystem<C, T> {
                 } else {
                     d_theta.copy_from_slice(second);
                 }
-                chain
-                    .accelerations_into(theta, second, tau, d_second, ws)
-                    .map_err(|s| singular(t, y, s))?;
+                chain.accelerations_into(theta, second, tau, d_second, ws).map_err(|s| singular(t, y, s))?;
             }
             Form::Hamiltonian => {
                 chain

@@ -38,9 +38,19 @@ pub enum Builtin {
     None,
     Constant(Vec<f64>),
     /// `offset_i + amplitude_i sin(frequency_i t + phase_i)`, frequency in rad/s.
-    Sinusoid { amplitude: Vec<f64>, frequency: Vec<f64>, phase: Vec<f64>, offset: Vec<f64> },
+    Sinusoid {
+        amplitude: Vec<f64>,
+        frequency: Vec<f64>,
+        phase: Vec<f64>,
+        offset: Vec<f64>,
+    },
     /// Samples `values` (row-major, `times.len()` x N), held at the end values outside the range.
-    Table { times: Vec<f64>, values: Vec<f64>, interp: Interp, second: Vec<f64> },
+    Table {
+        times: Vec<f64>,
+        values: Vec<f64>,
+        interp: Interp,
+        second: Vec<f64>,
+    },
 }
 
 impl Builtin {
@@ -64,18 +74,10 @@ impl Builtin {
         }
         check_finite("t", &times)?;
         if let Some(i) = (1..k).find(|&i| !(times[i] > times[i - 1])) {
-            return Err(Error::input(format!(
-                "t[{i}] must be > t[{}] (strictly increasing), got {} after {}",
-                i - 1,
-                times[i],
-                times[i - 1]
-            )));
+            return Err(Error::input(format!("t[{i}] must be > t[{}] (strictly increasing), got {} after {}", i - 1, times[i], times[i - 1])));
         }
         if values.len() != k * n {
-            return Err(Error::input(format!(
-                "values must have shape ({k}, {n}) (one row per sample, one column per link), got {} numbers",
-                values.len()
-            )));
+            return Err(Error::input(format!("values must have shape ({k}, {n}) (one row per sample, one column per link), got {} numbers", values.len())));
         }
         check_finite("values", &values)?;
         let second = if interp == Interp::Cubic { natural_spline(&times, &values, n) } else { Vec::new() };

@@ -198,7 +198,11 @@ impl Dop853 {
 /// 3rd-order estimates over its `count` controlled components (SciPy's `_estimate_error_norm`).
 #[inline]
 pub(super) fn combined_error(h: f64, e5: f64, e3: f64, count: usize) -> f64 {
-    if e5 == 0.0 && e3 == 0.0 { 0.0 } else { h.abs() * e5 / ((e5 + 0.01 * e3) * count as f64).sqrt() }
+    if e5 == 0.0 && e3 == 0.0 {
+        0.0
+    } else {
+        h.abs() * e5 / ((e5 + 0.01 * e3) * count as f64).sqrt()
+    }
 }
 
 /// The root mean square of `v(m)` over the first `count` components (the first step's scaled
@@ -220,11 +224,7 @@ pub(super) fn first_guess(d0: f64, d1: f64, span: f64) -> f64 {
 /// Hairer's first step from the trial `h0` and the scaled sizes of the rate (`d1`) and of its
 /// change over the trial (`d2`).
 pub(super) fn first_step_from(h0: f64, d1: f64, d2: f64, span: f64) -> f64 {
-    let h1 = if d1 <= 1e-15 && d2 <= 1e-15 {
-        (h0 * 1e-3).max(1e-6)
-    } else {
-        (0.01 / d1.max(d2)).powf(1.0 / 8.0)
-    };
+    let h1 = if d1 <= 1e-15 && d2 <= 1e-15 { (h0 * 1e-3).max(1e-6) } else { (0.01 / d1.max(d2)).powf(1.0 / 8.0) };
     (100.0 * h0).min(h1).min(span)
 }
 

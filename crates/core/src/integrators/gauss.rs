@@ -126,10 +126,7 @@ impl Gauss {
         let mut extrap = [[0.0; 3]; 3];
         for i in 0..stages {
             for j in 0..stages {
-                extrap[i][j] = (0..stages)
-                    .filter(|&m| m != j)
-                    .map(|m| (1.0 + c[i] - c[m]) / (c[j] - c[m]))
-                    .product();
+                extrap[i][j] = (0..stages).filter(|&m| m != j).map(|m| (1.0 + c[i] - c[m]) / (c[j] - c[m])).product();
             }
         }
         Gauss {
@@ -312,13 +309,7 @@ impl Integrator for Gauss {
         if m.k.len() != self.k.len() || m.comp.len() != self.comp.len() || m.last_h.is_some_and(|h| !(h.is_finite() && h > 0.0)) {
             return Err(misfit(
                 self.name(),
-                format!(
-                    "{} stage slopes and {} residuals expected, got {} and {}",
-                    self.k.len(),
-                    self.comp.len(),
-                    m.k.len(),
-                    m.comp.len()
-                ),
+                format!("{} stage slopes and {} residuals expected, got {} and {}", self.k.len(), self.comp.len(), m.k.len(), m.comp.len()),
             ));
         }
         self.dense.restore(m.slope, self.name())?;
@@ -350,10 +341,7 @@ impl Integrator for Gauss {
         }
         if !converged {
             self.last_h = None;
-            return Err(Error::integration(
-                t,
-                format!("the implicit stage equations of gauss{} did not converge; reduce dt (now {h})", 2 * s),
-            ));
+            return Err(Error::integration(t, format!("the implicit stage equations of gauss{} did not converge; reduce dt (now {h})", 2 * s)));
         }
         for m in 0..d {
             let inc: f64 = (0..s).map(|i| self.b[i] * self.k[i * d + m]).sum::<f64>() * h + self.comp[m];

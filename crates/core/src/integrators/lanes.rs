@@ -6,8 +6,8 @@
 //! other lanes). Used by the steppers' bank (`run::bank`), the flip times of chains other than the
 //! double pendulum (`chaos::flipkernel`), ensembles and chaos indicators; each compiles it inside
 //! its `#[target_feature]` wrappers.
-use crate::dynamics::lanes::{accelerations, accelerations_on, add_losses, add_pivot_forces_from, CartLanes, LaneScratch, LaneSingular};
 use crate::dynamics::base::Pivot;
+use crate::dynamics::lanes::{accelerations, accelerations_on, add_losses, add_pivot_forces_from, CartLanes, LaneScratch, LaneSingular};
 use crate::dynamics::torque::Timed;
 use crate::model::Chain;
 use crate::trig::lanes::{each, Lane, LANES};
@@ -178,14 +178,7 @@ impl Rk4Lanes {
     /// failed (then no lane moves); else the active lanes whose new state is not finite (they do
     /// not move either).
     #[inline(always)]
-    pub fn step(
-        &mut self,
-        chain: &Chain,
-        y: &mut [Lane],
-        tau: &[Lane],
-        dt: f64,
-        active: &Lane,
-    ) -> Stepped {
+    pub fn step(&mut self, chain: &Chain, y: &mut [Lane], tau: &[Lane], dt: f64, active: &Lane) -> Stepped {
         self.step_cart(chain, y, tau, &[0.0; LANES], dt, active)
     }
 
@@ -193,15 +186,7 @@ impl Rk4Lanes {
     /// joint torques `tau` and the cart force `force` (both held over the step); `W` the work of
     /// the joints' losses and the cart's damping (`-D`).
     #[inline(always)]
-    pub fn step_cart(
-        &mut self,
-        chain: &Chain,
-        y: &mut [Lane],
-        tau: &[Lane],
-        force: &Lane,
-        dt: f64,
-        active: &Lane,
-    ) -> Stepped {
+    pub fn step_cart(&mut self, chain: &Chain, y: &mut [Lane], tau: &[Lane], force: &Lane, dt: f64, active: &Lane) -> Stepped {
         let mut q = std::mem::take(&mut self.q);
         // The chain's equations do not depend on time: the steps' times are immaterial.
         let out = self.step_system(y, 0.0, dt, active, &mut ChainLanes { chain, tau, drive: None, force, pivot: None, pivot_work: false, q: &mut q });
@@ -211,27 +196,13 @@ impl Rk4Lanes {
 
     /// [`Rk4Lanes::step`] of any system built on the chain (see [`LaneSystem`]) from time `t`.
     #[inline(always)]
-    pub fn step_system(
-        &mut self,
-        y: &mut [Lane],
-        t: f64,
-        dt: f64,
-        active: &Lane,
-        sys: &mut impl LaneSystem,
-    ) -> Stepped {
+    pub fn step_system(&mut self, y: &mut [Lane], t: f64, dt: f64, active: &Lane, sys: &mut impl LaneSystem) -> Stepped {
         self.step_system_at(y, &[t; LANES], dt, active, sys)
     }
 
     /// [`Rk4Lanes::step_system`] from a time of each lane's own.
     #[inline(always)]
-    pub fn step_system_at(
-        &mut self,
-        y: &mut [Lane],
-        t: &Lane,
-        dt: f64,
-        active: &Lane,
-        sys: &mut impl LaneSystem,
-    ) -> Stepped {
+    pub fn step_system_at(&mut self, y: &mut [Lane], t: &Lane, dt: f64, active: &Lane, sys: &mut impl LaneSystem) -> Stepped {
         // A system of four lanes (the double pendulum, a pendulum on a cart) keeps its state,
         // stages and sums in fixed-size arrays, which LLVM holds in registers across the step
         // where it cannot do so for the heap buffers: the same operations, so the same bits.

@@ -9,14 +9,14 @@
 //! The torques' work is `tau . (theta_end - theta_start)` per call: exact for a torque held
 //! constant, and what rk4 gives the work integral `int tau . omega dt` in exact arithmetic.
 use super::energy::EnergyBalance;
+use super::live::observe_on;
 use super::simulate::Settings;
+use super::task::Task;
 use crate::dynamics::lanes::energies_on;
 use crate::dynamics::system::NON_FINITE;
 use crate::error::{Error, Result};
 use crate::integrators::lanes::{failed_at, step_cart_pair, Rk4Lanes, Stepped};
 use crate::model::Chain;
-use super::live::observe_on;
-use super::task::Task;
 use crate::par::each_shared;
 use crate::trig::lanes::{Lane, Path, LANES};
 
@@ -35,10 +35,7 @@ pub fn fits(_chain: &Chain, settings: &Settings) -> bool {
     settings.drive.pivot.is_none()
         && settings.drive.force.is_none()
         && settings.method == crate::integrators::Method::Rk4
-        && matches!(
-            settings.resolved_form(),
-            Ok(crate::dynamics::system::Form::Lagrangian)
-        )
+        && matches!(settings.resolved_form(), Ok(crate::dynamics::system::Form::Lagrangian))
 }
 
 /// Eight copies' lanes and the rk4 buffers.
@@ -87,30 +84,12 @@ impl Bank {
         let lanes = |k| vec![[0.0; LANES]; k];
         let (row, work) = layout(chain);
         let m = row + usize::from(work.is_some());
-        let group = Group {
-            y: lanes(m),
-            tau: lanes(n),
-            force: [0.0; LANES],
-            start: lanes(n + 1),
-            rk: Rk4Lanes::with_dim(n, m),
-        };
+        let group = Group { y: lanes(m), tau: lanes(n), force: [0.0; LANES], start: lanes(n + 1), rk: Rk4Lanes::with_dim(n, m) };
         let groups = vec![group; count.div_ceil(LANES)];
-        let mut bank = Bank {
-            chain: chain.clone(),
-            dt,
-            path,
-            count,
-            groups,
-            copies: Vec::with_capacity(count),
-        };
+        let mut bank = Bank { chain: chain.clone(), dt, path, count, groups, copies: Vec::with_capacity(count) };
         let rest = vec![0.0; n];
         for i in 0..count {
-            bank.copies.push(Copy {
-                steps: 0,
-                work: 0.0,
-                balance: EnergyBalance::from_energy(chain, 0.0, 0.0),
-                failed: None,
-            });
+            bank.copies.push(Copy { steps: 0, work: 0.0, balance: EnergyBalance::from_energy(chain, 0.0, 0.0), failed: None });
             bank.reset(i, &rest, &rest, [0.0; 2]);
         }
         bank
@@ -144,12 +123,7 @@ impl Bank {
         let (mut kinetic, mut energy) = ([0.0; LANES], [0.0; LANES]);
         energies_on(&self.chain, &g.y[..n], &g.y[n..2 * n], (row > 2 * n).then(|| &g.y[2 * n + 1]), &mut kinetic, &mut energy);
         let (kinetic, energy) = (kinetic[lane], energy[lane]);
-        self.copies[i] = Copy {
-            steps: 0,
-            work: 0.0,
-            balance: EnergyBalance::from_energy(&self.chain, kinetic, energy),
-            failed: None,
-        };
+        self.copies[i] = Copy { steps: 0, work: 0.0, balance: EnergyBalance::from_energy(&self.chain, kinetic, energy), failed: None };
     }
 
     /// Hold joint torques `u` (count x N) and a cart's forces `forces` (count values; empty
@@ -220,9 +194,7 @@ impl Bank {
         };
         match failed {
             None => Ok(()),
-            Some((i, Error::Integration { t, reason })) => {
-                Err(Error::integration(t, format!("copy {i}: {reason}")))
-            }
+            Some((i, Error::Integration { t, reason })) => Err(Error::integration(t, format!("copy {i}: {reason}"))),
             Some((_, e)) => Err(e),
         }
     }
@@ -230,12 +202,8 @@ impl Bank {
     /// Every copy's state (count x (2N, and 2 more with a cart)) and balance (count x 3).
     pub fn report_into(&mut self, states: &mut [f64], balance: &mut [f64]) {
         let (chain, dt, path, (row, _)) = (&self.chain, self.dt, self.path, layout(&self.chain));
-        for (((g, copies), s), b) in self
-            .groups
-            .iter_mut()
-            .zip(self.copies.chunks_mut(LANES))
-            .zip(states.chunks_mut(LANES * row))
-            .zip(balance.chunks_mut(LANES * 3))
+        for (((g, copies), s), b) in
+            self.groups.iter_mut().zip(self.copies.chunks_mut(LANES)).zip(states.chunks_mut(LANES * row)).zip(balance.chunks_mut(LANES * 3))
         {
             report_on(path, chain, dt, g, copies, s, b);
         }
@@ -278,14 +246,7 @@ unsafe fn report_avx2(chain: &Chain, dt: f64, g: &mut Group, copies: &mut [Copy]
 
 /// Each copy of the group: its state row and `(t, energy, energy_error)` (the energies in lanes).
 #[inline(always)]
-fn report(
-    chain: &Chain,
-    dt: f64,
-    g: &mut Group,
-    copies: &mut [Copy],
-    states: &mut [f64],
-    balance: &mut [f64],
-) {
+fn report(chain: &Chain, dt: f64, g: &mut Group, copies: &mut [Copy], states: &mut [f64], balance: &mut [f64]) {
     let (n, (len, work)) = (chain.n(), layout(chain));
     let (mut kinetic, mut energy) = ([0.0; LANES], [0.0; LANES]);
     energies_on(chain, &g.y[..n], &g.y[n..2 * n], (len > 2 * n).then(|| &g.y[2 * n + 1]), &mut kinetic, &mut energy);

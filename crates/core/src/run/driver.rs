@@ -214,17 +214,7 @@ impl<S: OdeSystem, I: Integrator> Run<S, I> {
             t_end: config.t_end,
             last_index: config.t_end.filter(|_| grid).map(|e| fixed_steps(e, dt)),
             max_steps: config.max_steps,
-            state: State {
-                t: 0.0,
-                y,
-                steps: 0,
-                rejected: 0,
-                evaluations: 0,
-                iterations: 0,
-                h: f64::NAN,
-                after_rejection: false,
-                memory,
-            },
+            state: State { t: 0.0, y, steps: 0, rejected: 0, evaluations: 0, iterations: 0, h: f64::NAN, after_rejection: false, memory },
             last: None,
             y_prev: vec![0.0; dim],
             y_new: vec![0.0; dim],
@@ -404,11 +394,7 @@ impl<S: OdeSystem, I: Integrator> Run<S, I> {
     /// The state with its counters brought up to date (they are not kept per step, which would
     /// cost the double pendulum's hot loop a few percent).
     fn counted(&self) -> State {
-        State {
-            evaluations: self.sys.n,
-            iterations: self.iterations_before + self.integ.iterations(),
-            ..self.state.clone()
-        }
+        State { evaluations: self.sys.n, iterations: self.iterations_before + self.integ.iterations(), ..self.state.clone() }
     }
 
     /// Accepted steps, rejected attempts, right-hand side evaluations and implicit iterations.

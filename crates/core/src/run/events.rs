@@ -2,10 +2,10 @@
 //! the integrator's dense output (DOP853's 7th-order interpolant, or the cubic Hermite of a
 //! fixed step) rather than "the step where it changed sign". An event records the state there,
 //! or stops the run (terminal).
+use crate::dynamics::system::Form;
 use crate::dynamics::Workspace;
 use crate::error::{Error, Result};
 use crate::model::Chain;
-use crate::dynamics::system::Form;
 use std::sync::Arc;
 
 /// A user's event function `g(t, theta, omega)` (e.g. written in Python by the bindings).
@@ -37,10 +37,7 @@ impl PartialEq for Condition {
     fn eq(&self, other: &Self) -> bool {
         match (self, other) {
             (Condition::Flip(a), Condition::Flip(b)) => a == b,
-            (
-                Condition::Linear { theta: a, omega: b, constant: c },
-                Condition::Linear { theta: x, omega: y, constant: z },
-            ) => a == x && b == y && c == z,
+            (Condition::Linear { theta: a, omega: b, constant: c }, Condition::Linear { theta: x, omega: y, constant: z }) => a == x && b == y && c == z,
             (Condition::Custom(a), Condition::Custom(b)) => Arc::ptr_eq(a, b),
             _ => false,
         }
@@ -101,16 +98,7 @@ pub(crate) struct Tracker<'a> {
 impl<'a> Tracker<'a> {
     pub fn new(specs: &'a [EventSpec], chain: &'a Chain, form: Form) -> Self {
         let n = chain.n();
-        Tracker {
-            specs,
-            chain,
-            form,
-            ws: Workspace::new(n),
-            omega: vec![0.0; n],
-            prev: vec![0.0; specs.len()],
-            next: vec![0.0; specs.len()],
-            hits: Vec::new(),
-        }
+        Tracker { specs, chain, form, ws: Workspace::new(n), omega: vec![0.0; n], prev: vec![0.0; specs.len()], next: vec![0.0; specs.len()], hits: Vec::new() }
     }
 
     pub fn active(&self) -> bool {
@@ -135,9 +123,7 @@ impl<'a> Tracker<'a> {
                 Condition::Flip(Some(k)) => theta[*k].abs() - std::f64::consts::PI,
                 Condition::Flip(None) => theta.iter().fold(f64::NEG_INFINITY, |m, t| m.max(t.abs())) - std::f64::consts::PI,
                 Condition::Linear { theta: a, omega: b, constant } => {
-                    theta.iter().zip(a).map(|(x, c)| x * c).sum::<f64>()
-                        + omega.iter().zip(b).map(|(x, c)| x * c).sum::<f64>()
-                        + constant
+                    theta.iter().zip(a).map(|(x, c)| x * c).sum::<f64>() + omega.iter().zip(b).map(|(x, c)| x * c).sum::<f64>() + constant
                 }
                 Condition::Custom(f) => {
                     let v = f.value(t, theta, omega)?;
@@ -180,13 +166,7 @@ impl<'a> Tracker<'a> {
     /// Locate the crossings of the step `[t, t + h]` on `interp(x, out)` (the state at `t + x h`)
     /// by the Illinois method; record them in time order, up to the first terminal one, whose
     /// time and state are returned.
-    pub fn locate(
-        &mut self,
-        t: f64,
-        h: f64,
-        mut interp: impl FnMut(f64, &mut [f64]) -> Result<()>,
-        dim: usize,
-    ) -> Result<Option<(f64, Vec<f64>)>> {
+    pub fn locate(&mut self, t: f64, h: f64, mut interp: impl FnMut(f64, &mut [f64]) -> Result<()>, dim: usize) -> Result<Option<(f64, Vec<f64>)>> {
         let mut found: Vec<(f64, usize, Vec<f64>)> = Vec::new();
         let mut y = vec![0.0; dim];
         let mut vals = vec![0.0; self.specs.len()];

@@ -18,15 +18,15 @@
 //! AVX-512, AVX2 and portable paths.
 use super::driver::{fixed_steps, max_steps_reached, min_step, UNDERFLOW};
 use super::simulate::{finish, Recorder, Settings, Stats, Trajectory};
+use crate::dynamics::base::{Drive, Pivot};
 use crate::dynamics::lanes::LaneScratch;
 use crate::dynamics::system::{check_finite_state, ChainSystem, Form, Layout, NON_FINITE};
-use crate::dynamics::base::{Drive, Pivot};
 use crate::dynamics::torque::{Builtin, Timed};
 use crate::error::{Error, Result};
 use crate::integrators::dop853_lanes::{mask, Dop853Lanes, StartFailure};
 use crate::integrators::lanes::{failed_at, ChainLanes, LaneSystem, Rk4Lanes};
-use crate::integrators::{Controller, Decision};
 use crate::integrators::Method;
+use crate::integrators::{Controller, Decision};
 use crate::interp::hermite;
 use crate::model::Chain;
 use crate::par::*;
@@ -57,7 +57,16 @@ pub fn route(settings: &Settings, drive: Option<&Timed>) -> Result<Option<Path>>
 /// Each finished trajectory counts a unit of `watch`; a stopped watch stops every group within
 /// a step.
 #[allow(clippy::too_many_arguments)]
-pub fn simulate(chain: &Chain, theta0: &[f64], omega0: &[f64], t_end: f64, settings: &Settings, drive: &Timed, path: Path, watch: &Watch) -> Result<Vec<Trajectory>> {
+pub fn simulate(
+    chain: &Chain,
+    theta0: &[f64],
+    omega0: &[f64],
+    t_end: f64,
+    settings: &Settings,
+    drive: &Timed,
+    path: Path,
+    watch: &Watch,
+) -> Result<Vec<Trajectory>> {
     let n = chain.n();
     for (i, (th, om)) in theta0.chunks(n).zip(omega0.chunks(n)).enumerate() {
         chain.check_state("theta0", th).and_then(|_| chain.check_state("omega0", om)).map_err(|e| match e {
@@ -255,9 +264,11 @@ fn run_group(g: &Group, watch: &Watch) -> Result<Vec<Trajectory>> {
         if let Some(te) = t_eval {
             let edge = t1 - snap * h;
             if next < te.len() && te[next] < edge {
-                let failed = |t: f64| move |s: crate::dynamics::lanes::LaneSingular| {
-                    let j = (0..LANES).find(|&j| s.lanes[j]).unwrap_or(0);
-                    error(j, t, &s.reason(j))
+                let failed = |t: f64| {
+                    move |s: crate::dynamics::lanes::LaneSingular| {
+                        let j = (0..LANES).find(|&j| s.lanes[j]).unwrap_or(0);
+                        error(j, t, &s.reason(j))
+                    }
                 };
                 // The slopes in place, not through a closure: its body would compile outside the
                 // path's target features, each `mul_add` a call to `fma()`.
@@ -293,10 +304,7 @@ fn run_group(g: &Group, watch: &Watch) -> Result<Vec<Trajectory>> {
         }
     }
     let stats = Stats { steps, rejected: 0, evaluations, iterations: 0, energy_error: 0.0 };
-    recs.into_iter()
-        .zip(initial)
-        .map(|(rec, start)| finish(chain, Form::Lagrangian, layout, &settings.drive, &start, rec, Vec::new(), stats.clone()))
-        .collect()
+    recs.into_iter().zip(initial).map(|(rec, start)| finish(chain, Form::Lagrangian, layout, &settings.drive, &start, rec, Vec::new(), stats.clone())).collect()
 }
 
 /// The run driver's step control of dop853 in eight lanes: each lane's time, next step and
@@ -511,10 +519,13 @@ mod tests {
     fn a_batch_in_lanes_gives_every_output_of_the_per_trajectory_route() {
         let undriven = Timed { builtin: Builtin::None, joint: false };
         let sinusoid = Timed { builtin: Builtin::sinusoid(2, vec![1.5, -0.7], vec![3.0, 5.5], vec![0.1, 0.0], vec![0.2, 0.0]).unwrap(), joint: false };
-        let table = Timed { builtin: Builtin::table(3, vec![0.0, 0.3, 0.9], vec![0.0, 1.0, -2.0, 1.0, 0.5, 0.0, 2.0, -1.0, 0.3], crate::Interp::Cubic).unwrap(), joint: true };
+        let table = Timed {
+            builtin: Builtin::table(3, vec![0.0, 0.3, 0.9], vec![0.0, 1.0, -2.0, 1.0, 0.5, 0.0, 2.0, -1.0, 0.3], crate::Interp::Cubic).unwrap(),
+            joint: true,
+        };
         let (t_end, dt) = (0.834, 0.01); // the last step is shortened
-        // Output at every step, on the grid (snapped) and between grid points (interpolated,
-        // some steps with several outputs, some with none).
+                                         // Output at every step, on the grid (snapped) and between grid points (interpolated,
+                                         // some steps with several outputs, some with none).
         let outputs = [None, Some((0..=8).map(|k| 0.1 * k as f64).collect()), Some(vec![0.0, 0.013, 0.0171, 0.02, 0.3333, 0.5, 0.75, 0.8, t_end])];
         let chains = chains();
         for (c, chain) in chains.iter().enumerate() {
@@ -536,7 +547,12 @@ mod tests {
                 for (i, (g, w)) in got.iter().zip(&want).enumerate() {
                     let what = |f: &str| format!("chain {c}, row {i}, {f}");
                     assert_eq!(g.t, w.t, "{}", what("t"));
-                    assert_eq!((g.stats.steps, g.stats.evaluations, g.stats.rejected), (w.stats.steps, w.stats.evaluations, w.stats.rejected), "{}", what("stats"));
+                    assert_eq!(
+                        (g.stats.steps, g.stats.evaluations, g.stats.rejected),
+                        (w.stats.steps, w.stats.evaluations, w.stats.rejected),
+                        "{}",
+                        what("stats")
+                    );
                     // Round-off grown by the chaotic rows over 83 steps.
                     let tol = 1e-11;
                     close(&what("theta"), &g.theta, &w.theta, tol);
@@ -562,7 +578,10 @@ mod tests {
     #[test]
     fn a_batch_on_a_moving_pivot_in_lanes_gives_the_per_trajectory_routes_work_and_pivot() {
         use crate::dynamics::base::{Axis, Drive, Pivot};
-        let shaken = Pivot { x: Axis::sinusoid("x", 0.05, 20.0, 0.3, 0.1).unwrap(), y: Axis::spline("y", vec![0.0, 0.2, 0.5, 1.0], vec![0.0, 0.03, -0.02, 0.01]).unwrap() };
+        let shaken = Pivot {
+            x: Axis::sinusoid("x", 0.05, 20.0, 0.3, 0.1).unwrap(),
+            y: Axis::spline("y", vec![0.0, 0.2, 0.5, 1.0], vec![0.0, 0.03, -0.02, 0.01]).unwrap(),
+        };
         let held = Pivot { x: Axis::Fixed(0.2), y: Axis::Fixed(-0.1) }; // fixed, off the origin
         let drive = Timed { builtin: Builtin::sinusoid(2, vec![1.5, -0.7], vec![3.0, 5.5], vec![0.1, 0.0], vec![0.2, 0.0]).unwrap(), joint: false };
         let chains = chains();
@@ -625,7 +644,12 @@ mod tests {
                 assert_eq!(g.t, w.t, "{what}");
                 let off = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max);
                 // As near the exact motion as the per-trajectory run (each takes its own steps).
-                assert!(off(&g.theta, &e.theta) <= 10.0 * off(&w.theta, &e.theta) + 1e-10, "{what}: {} vs {}", off(&g.theta, &e.theta), off(&w.theta, &e.theta));
+                assert!(
+                    off(&g.theta, &e.theta) <= 10.0 * off(&w.theta, &e.theta) + 1e-10,
+                    "{what}: {} vs {}",
+                    off(&g.theta, &e.theta),
+                    off(&w.theta, &e.theta)
+                );
                 assert!(off(&g.energy_error, &w.energy_error) < 1e-9, "{what}");
                 // The same steps give or take one (chain 3's regularised friction is stiff where
                 // a joint stops: there the controller's choices follow round-off, a few more).

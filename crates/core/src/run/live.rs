@@ -7,8 +7,8 @@
 use super::bank::{self, Bank};
 use super::driver::Run;
 use super::energy::EnergyBalance;
-use super::task::Task;
 use super::simulate::{fill_rates, initial_state, Books, Settings, Terms};
+use super::task::Task;
 use crate::dynamics::base::Force;
 use crate::dynamics::system::{ChainSystem, Form};
 use crate::dynamics::torque::{Builtin, Joint, TorqueSource};
@@ -56,7 +56,11 @@ fn observe(states: &[f64], k: usize, columns: &[Column], out: &mut [f64]) {
                         trig[i] = Some(sin_cos(&lane));
                     }
                     let (sin, cos) = trig[i].unwrap_or_default();
-                    if matches!(col, Column::Cos(_)) { cos } else { sin }
+                    if matches!(col, Column::Cos(_)) {
+                        cos
+                    } else {
+                        sin
+                    }
                 }
             };
             for c in 0..copies {
@@ -523,7 +527,16 @@ impl Steppers {
     /// an episode is truncated. `batched`: name a refused action by `(copy, component)`.
     /// Returns how many copies ended (terminated or truncated).
     #[allow(clippy::too_many_arguments)]
-    pub fn act(&mut self, task: &Task, actions: &[f64], batched: bool, span: f64, active: &[bool], episode: (&mut [u64], Option<u64>), out: Acted<'_>) -> Result<usize> {
+    pub fn act(
+        &mut self,
+        task: &Task,
+        actions: &[f64],
+        batched: bool,
+        span: f64,
+        active: &[bool],
+        episode: (&mut [u64], Option<u64>),
+        out: Acted<'_>,
+    ) -> Result<usize> {
         task.check(&self.chain)?;
         let (count, n) = (self.len(), self.chain.n());
         if actions.len() != count * task.width() {
@@ -531,7 +544,10 @@ impl Steppers {
         }
         let (steps, limit) = episode;
         if out.obs.len() != count * task.columns.len() || [out.reward.len(), out.terminated.len(), out.truncated.len(), steps.len()] != [count; 4] {
-            return Err(Error::input(format!("the observations, rewards, ends and episode steps must have count x {}, count, count and count values", task.columns.len())));
+            return Err(Error::input(format!(
+                "the observations, rewards, ends and episode steps must have count x {}, count, count and count values",
+                task.columns.len()
+            )));
         }
         let mut torques = vec![0.0; count * n];
         let mut forces = vec![0.0; if self.chain.cart().is_some() { count } else { 0 }];
@@ -681,7 +697,9 @@ mod tests {
             let s = settings("rk4", Some(0.01));
             let mut batch = Steppers::new(&chain, 11, &s).unwrap();
             assert!(batch.route().starts_with("lanes:") || std::env::var(super::bank::SWITCH).as_deref() == Ok("scalar"), "{}", batch.route());
-            let start = |i: usize| -> (Vec<f64>, Vec<f64>) { ((0..n).map(|a| 0.3 * (i + a) as f64 - 1.0).collect(), (0..n).map(|a| 0.1 * (i as f64 - a as f64)).collect()) };
+            let start = |i: usize| -> (Vec<f64>, Vec<f64>) {
+                ((0..n).map(|a| 0.3 * (i + a) as f64 - 1.0).collect(), (0..n).map(|a| 0.1 * (i as f64 - a as f64)).collect())
+            };
             for i in 0..11 {
                 let (th, om) = start(i);
                 batch.reset(i, &th, &om, [0.0; 2]).unwrap();
@@ -775,10 +793,7 @@ mod tests {
     #[test]
     fn a_lossy_chains_copies_in_lanes_agree_with_a_stepper_each() {
         use crate::trig::lanes::Path;
-        let chain = Chain::new(&[1.0, 0.5, 0.8], &[1.0, 2.0, 0.5], None, None, 9.81)
-            .unwrap()
-            .with_losses(&[0.1, 0.2, 0.05], &[0.1, 0.0, 0.2], 0.5)
-            .unwrap();
+        let chain = Chain::new(&[1.0, 0.5, 0.8], &[1.0, 2.0, 0.5], None, None, 9.81).unwrap().with_losses(&[0.1, 0.2, 0.05], &[0.1, 0.0, 0.2], 0.5).unwrap();
         let s = settings("rk4", Some(0.005));
         let mut lanes = Steppers::with_route(&chain, 9, &s, Some(Path::best())).unwrap();
         let mut each = Steppers::with_route(&chain, 9, &s, None).unwrap();

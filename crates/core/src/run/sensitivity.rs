@@ -63,9 +63,7 @@ impl<'c, T: TorqueSource> Sensitive<'c, T> {
             ));
         }
         if drive.force.as_ref().is_some_and(|f| f.is_feedback()) {
-            return Err(Error::input(
-                "sensitivities need a cart force that depends on time only, not a feedback f(t, state)",
-            ));
+            return Err(Error::input("sensitivities need a cart force that depends on time only, not a feedback f(t, state)"));
         }
         let cols = Columns::new(chain, sys.form(), directions(inputs, chain.n())?);
         Ok(Sensitive { chain, base: sys.layout().dim(), cols, sys })

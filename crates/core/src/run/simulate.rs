@@ -132,10 +132,9 @@ pub struct Trajectory {
 impl Settings {
     pub fn resolved_form(&self) -> Result<Form> {
         match (self.method.symplectic(), self.form) {
-            (true, Some(Form::Lagrangian)) => Err(Error::input(format!(
-                "method {} integrates Hamilton's equations; form must be \"hamiltonian\", got \"lagrangian\"",
-                self.method.name()
-            ))),
+            (true, Some(Form::Lagrangian)) => {
+                Err(Error::input(format!("method {} integrates Hamilton's equations; form must be \"hamiltonian\", got \"lagrangian\"", self.method.name())))
+            }
             (true, _) => Ok(Form::Hamiltonian),
             (false, f) => Ok(f.unwrap_or(Form::Lagrangian)),
         }
@@ -143,15 +142,7 @@ impl Settings {
 
     /// The driver's configuration of a run to `t_end` (`None`: a run without an end).
     pub fn config(&self, t_end: Option<f64>) -> Config {
-        Config {
-            method: self.method,
-            dt: self.dt,
-            rtol: self.rtol,
-            atol: self.atol,
-            adaptive: self.adaptive,
-            t_end,
-            max_steps: self.max_steps,
-        }
+        Config { method: self.method, dt: self.dt, rtol: self.rtol, atol: self.atol, adaptive: self.adaptive, t_end, max_steps: self.max_steps }
     }
 
     /// Whether `trajectories` runs to `t_end` are surely short (a fixed-step run of a few
@@ -159,9 +150,7 @@ impl Settings {
     /// thread for Ctrl-C (which costs tens of microseconds to start).
     pub fn is_short(&self, t_end: f64, trajectories: usize) -> bool {
         match self.dt {
-            Some(dt) if !self.method.adaptive() || !self.adaptive => {
-                (t_end / dt).ceil() * trajectories as f64 <= SHORT_STEPS && self.events.is_empty()
-            }
+            Some(dt) if !self.method.adaptive() || !self.adaptive => (t_end / dt).ceil() * trajectories as f64 <= SHORT_STEPS && self.events.is_empty(),
             _ => false,
         }
     }
@@ -194,11 +183,7 @@ impl Settings {
                         return Err(Error::input(format!("t_eval[{i}] must lie in [0, t_end = {t_end}], got {v}")));
                     }
                     if i > 0 && v < te[i - 1] {
-                        return Err(Error::input(format!(
-                            "t_eval must be ascending: t_eval[{i}] = {v} < t_eval[{}] = {}",
-                            i - 1,
-                            te[i - 1]
-                        )));
+                        return Err(Error::input(format!("t_eval must be ascending: t_eval[{i}] = {v} < t_eval[{}] = {}", i - 1, te[i - 1])));
                     }
                 }
                 te.len() as f64
@@ -342,9 +327,9 @@ impl Checkpoint {
     }
 
     pub fn from_bytes(bytes: &[u8]) -> Result<Self> {
-        let body = bytes.strip_prefix(CHECKPOINT_MAGIC.as_slice()).ok_or_else(|| {
-            Error::input("the checkpoint's run state is not of this format (another version, or damaged)")
-        })?;
+        let body = bytes
+            .strip_prefix(CHECKPOINT_MAGIC.as_slice())
+            .ok_or_else(|| Error::input("the checkpoint's run state is not of this format (another version, or damaged)"))?;
         postcard::from_bytes(body).map_err(|e| Error::input(format!("the checkpoint's run state cannot be read (damaged?): {e}")))
     }
 }
@@ -371,13 +356,7 @@ pub enum Start<'a> {
 /// After each accepted step: a checkpoint when one is due; the monitor every `MONITOR_EVERY`
 /// steps, and when it stops the run, a last checkpoint before its error. `snapshot` is only
 /// called when a checkpoint is taken (it copies the output rows).
-fn after_step(
-    steps: u64,
-    t: f64,
-    monitor: Monitor,
-    checkpoints: &mut Option<&mut Checkpoints>,
-    snapshot: impl Fn() -> Checkpoint,
-) -> Result<()> {
+fn after_step(steps: u64, t: f64, monitor: Monitor, checkpoints: &mut Option<&mut Checkpoints>, snapshot: impl Fn() -> Checkpoint) -> Result<()> {
     let tick = steps % MONITOR_EVERY == 0;
     let mut saved = false;
     if let Some(cp) = checkpoints.as_deref_mut() {
@@ -553,10 +532,15 @@ fn drive<S: Traced, I: Integrator>(
         if tracker.active() {
             if tracker.detect(t1, run.y())? {
                 run.dense()?;
-                let stop = tracker.locate(t0, h, |x, out| {
-                    run.interpolate(x, out);
-                    Ok(())
-                }, d)?;
+                let stop = tracker.locate(
+                    t0,
+                    h,
+                    |x, out| {
+                        run.interpolate(x, out);
+                        Ok(())
+                    },
+                    d,
+                )?;
                 if let Some((ts, ys)) = stop {
                     let mut out = vec![0.0; d];
                     if let Some(te) = t_eval {
@@ -862,11 +846,7 @@ impl Books {
 pub(crate) fn batch_size(chain: &Chain, theta0: &[f64], omega0: &[f64]) -> Result<usize> {
     let n = chain.n();
     if theta0.len() != omega0.len() || theta0.len() % n != 0 {
-        return Err(Error::input(format!(
-            "theta0 and omega0 must both have shape (B, {n}), got {} and {} numbers",
-            theta0.len(),
-            omega0.len()
-        )));
+        return Err(Error::input(format!("theta0 and omega0 must both have shape (B, {n}), got {} and {} numbers", theta0.len(), omega0.len())));
     }
     Ok(theta0.len() / n)
 }
@@ -911,9 +891,7 @@ pub fn simulate_batch<T: TorqueSource + Clone + Send + Sync>(
 ) -> Result<Vec<Trajectory>> {
     let (n, b) = (chain.n(), batch_size(chain, theta0, omega0)?);
     if settings.method.adaptive() && settings.adaptive && settings.t_eval.is_none() {
-        return Err(Error::input(
-            "a batch run of an adaptive method needs t_eval (each trajectory takes its own steps)",
-        ));
+        return Err(Error::input("a batch run of an adaptive method needs t_eval (each trajectory takes its own steps)"));
     }
     let rows = settings.validate(t_end)?;
     check_output_size(rows as f64 * b as f64, n, output_row_bytes(chain, settings))?;
@@ -929,8 +907,8 @@ pub fn simulate_batch<T: TorqueSource + Clone + Send + Sync>(
         .map(|i| {
             watch.check(0.0)?;
             let range = i * n..(i + 1) * n;
-            let tr = simulate(chain, &theta0[range.clone()], &omega0[range], t_end, settings, torque.clone(), &mut |t| watch.check(t))
-                .map_err(|e| match e {
+            let tr =
+                simulate(chain, &theta0[range.clone()], &omega0[range], t_end, settings, torque.clone(), &mut |t| watch.check(t)).map_err(|e| match e {
                     Error::Input(m) => Error::Input(format!("trajectory {i}: {m}")),
                     Error::Integration { t, reason } => Error::Integration { t, reason: format!("trajectory {i}: {reason}") },
                     other => other,
@@ -981,8 +959,7 @@ mod tests {
                 for cp in [&saved[0], &saved[saved.len() / 2], saved.last().unwrap()] {
                     // Through the bytes a checkpoint file holds.
                     let cp = Checkpoint::from_bytes(&cp.to_bytes()).unwrap();
-                    let resumed =
-                        simulate_from(&chain, Start::Resume(&cp), 3.0, &s, drive(), &mut |_| Ok(()), None).unwrap();
+                    let resumed = simulate_from(&chain, Start::Resume(&cp), 3.0, &s, drive(), &mut |_| Ok(()), None).unwrap();
                     assert_eq!(resumed, plain, "{method}: resumed at t = {}", cp.t());
                 }
             }
@@ -1017,9 +994,7 @@ mod tests {
         let s = settings("gauss6", Some(0.01), None);
         let (_, saved) = checkpoints_of(&chain, &s, 1.0, 20);
         let cp = &saved[1];
-        let resume = |cp: &Checkpoint, s: &Settings| {
-            simulate_from(&chain, Start::Resume(cp), 1.0, s, drive(), &mut |_| Ok(()), None).unwrap_err().to_string()
-        };
+        let resume = |cp: &Checkpoint, s: &Settings| simulate_from(&chain, Start::Resume(cp), 1.0, s, drive(), &mut |_| Ok(()), None).unwrap_err().to_string();
         let with = |run: State| Checkpoint { run, ..cp.clone() };
         let off_grid = with(State { t: cp.t() + 1e-3, ..cp.run.clone() });
         assert!(resume(&off_grid, &s).contains("not on the grid"), "{}", resume(&off_grid, &s));
@@ -1031,7 +1006,8 @@ mod tests {
         assert!(resume(&rows, &s).contains("output times but"), "{}", resume(&rows, &s));
         let nan = with(State { y: vec![f64::NAN; 5], ..cp.run.clone() });
         assert!(resume(&nan, &s).contains("not finite"));
-        let with_events = Settings { events: vec![EventSpec { condition: crate::run::events::Condition::Flip(None), direction: 1, terminal: true }], ..s.clone() };
+        let with_events =
+            Settings { events: vec![EventSpec { condition: crate::run::events::Condition::Flip(None), direction: 1, terminal: true }], ..s.clone() };
         assert!(resume(cp, &with_events).contains("cannot be combined with events"));
     }
 

@@ -89,7 +89,10 @@ impl Task {
                 Target::Cart => chain.cart().is_some(),
             };
             if !ok || targets[..a].contains(t) {
-                return Err(Error::input(format!("action component {a}: {t:?} is not a distinct input of this chain ({n} joints{})", if chain.cart().is_some() { ", a cart" } else { "" })));
+                return Err(Error::input(format!(
+                    "action component {a}: {t:?} is not a distinct input of this chain ({n} joints{})",
+                    if chain.cart().is_some() { ", a cart" } else { "" }
+                )));
             }
         }
         if let Some(c) = self.columns.iter().find(|c| c.index() >= row) {
@@ -245,7 +248,15 @@ mod tests {
     #[test]
     fn actions_become_the_inputs_of_their_targets() {
         let chain = cartpole(3);
-        let task = Task::new(&chain, false, vec![Target::Joint(2), Target::Cart, Target::Joint(0)], vec![2.0, 10.0, 0.5], observe_all(3), Goal::SwingUp { x_limit: 2.4 }).unwrap();
+        let task = Task::new(
+            &chain,
+            false,
+            vec![Target::Joint(2), Target::Cart, Target::Joint(0)],
+            vec![2.0, 10.0, 0.5],
+            observe_all(3),
+            Goal::SwingUp { x_limit: 2.4 },
+        )
+        .unwrap();
         let actions = [0.25, -3.0, 1.0, 1.5, 0.0, -0.75];
         let (mut torques, mut forces) = ([9.0; 6], [9.0; 2]);
         task.inputs(&chain, &actions, true, &mut torques, &mut forces).unwrap();
@@ -271,10 +282,19 @@ mod tests {
             other => panic!("expected an input error, got {other:?}"),
         };
         assert_eq!(message(task.inputs(&chain, &[0.0, 1.0, f64::NAN, 0.0], true, &mut torques, &mut forces)), "action must be finite, got nan at index (1, 0)");
-        assert_eq!(message(task.inputs(&chain, &[0.0, f64::NEG_INFINITY], false, &mut torques[..2], &mut forces)), "action must be finite, got -inf at index (1,)");
+        assert_eq!(
+            message(task.inputs(&chain, &[0.0, f64::NEG_INFINITY], false, &mut torques[..2], &mut forces)),
+            "action must be finite, got -inf at index (1,)"
+        );
         let discrete = Task::new(&chain, true, both, vec![1.0, 1.0], observe_all(2), Goal::Height { above: 0.85 }).unwrap();
-        assert_eq!(message(discrete.inputs(&chain, &[0.0, 1.0, 2.0, 1.5], true, &mut torques, &mut forces)), "a discrete action must be 0, 1 or 2, got 1.5 at index (1, 1)");
-        assert_eq!(message(discrete.inputs(&chain, &[3.0, 1.0], false, &mut torques[..2], &mut forces)), "a discrete action must be 0, 1 or 2, got 3 at index (0,)");
+        assert_eq!(
+            message(discrete.inputs(&chain, &[0.0, 1.0, 2.0, 1.5], true, &mut torques, &mut forces)),
+            "a discrete action must be 0, 1 or 2, got 1.5 at index (1, 1)"
+        );
+        assert_eq!(
+            message(discrete.inputs(&chain, &[3.0, 1.0], false, &mut torques[..2], &mut forces)),
+            "a discrete action must be 0, 1 or 2, got 3 at index (0,)"
+        );
         // Nothing was written by a refused call.
         assert_eq!(torques, [0.0; 4]);
     }
@@ -337,7 +357,14 @@ mod tests {
         let balance = Task::new(&chain, false, vec![Target::Cart], vec![10.0], vec![], Goal::Balance { x_limit: 2.4, angle_limit: 0.2 }).unwrap();
         let swing = Task::new(&chain, false, vec![Target::Cart], vec![10.0], vec![], Goal::SwingUp { x_limit: 2.4 }).unwrap();
         // (theta_1, theta_2, x): upright within the limit (some a full turn away), leaning, off the track.
-        let cases = [(PI + 0.1, PI - 0.15, 0.0, false), (3.0 * PI - 0.1, -PI + 0.05, 1.0, false), (PI + 0.25, PI, 0.0, true), (PI, PI - 0.3, 0.0, true), (PI, PI, -2.5, true), (0.3, 0.0, 0.0, true)];
+        let cases = [
+            (PI + 0.1, PI - 0.15, 0.0, false),
+            (3.0 * PI - 0.1, -PI + 0.05, 1.0, false),
+            (PI + 0.25, PI, 0.0, true),
+            (PI, PI - 0.3, 0.0, true),
+            (PI, PI, -2.5, true),
+            (0.3, 0.0, 0.0, true),
+        ];
         let states: Vec<f64> = cases.iter().flat_map(|&(a, b, x, _)| [a, b, 0.0, 0.0, x, 0.0]).collect();
         let (mut reward, mut ended) = (vec![0.0; cases.len()], vec![false; cases.len()]);
         balance.outcome(&chain, &states, &mut reward, &mut ended);
@@ -359,7 +386,9 @@ mod tests {
         let chain = cartpole(2);
         let settings = Settings { method: crate::integrators::Method::Rk4, dt: Some(0.005), ..Settings::default() };
         let columns = vec![Column::Value(4), Column::Cos(0), Column::Sin(1), Column::Value(3)];
-        let task = Task::new(&chain, false, vec![Target::Cart, Target::Joint(1)], vec![10.0, 2.0], columns.clone(), Goal::Balance { x_limit: 2.4, angle_limit: 0.2 }).unwrap();
+        let task =
+            Task::new(&chain, false, vec![Target::Cart, Target::Joint(1)], vec![10.0, 2.0], columns.clone(), Goal::Balance { x_limit: 2.4, angle_limit: 0.2 })
+                .unwrap();
         let count = 11;
         let actions: Vec<f64> = (0..2 * count).map(|i| ((i * 7) % 5) as f64 * 0.6 - 1.2).collect();
         let mut torques = vec![0.0; 2 * count];

@@ -284,7 +284,11 @@ pub(crate) mod tests {
     fn ulps(a: f64, b: f64) -> u64 {
         let key = |x: f64| {
             let i = x.to_bits() as i64;
-            if i < 0 { i64::MIN - i } else { i }
+            if i < 0 {
+                i64::MIN - i
+            } else {
+                i
+            }
         };
         key(a).abs_diff(key(b))
     }
@@ -357,5 +361,4 @@ pub(crate) mod tests {
         let (s, c) = sin_cos(&[f64::NAN, f64::INFINITY, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
         assert!(s[0].is_nan() && c[0].is_nan() && s[1].is_nan() && c[1].is_nan());
     }
-
 }
