@@ -9,7 +9,7 @@ WEB     := python/multipendulum/web
 CHROMIUM ?= /usr/bin/chromium
 export PATH := $(HOME)/.cargo/bin:$(PATH)
 
-.PHONY: setup build build-test wasm browser demo test test-rust test-python fuzz bench docs clean
+.PHONY: setup build build-test wasm browser demo test test-rust test-python lint fuzz bench docs clean
 
 $(PY):
 	python3 -m venv $(VENV)
@@ -46,8 +46,16 @@ browser: $(PY)
 	@$(PY) -c "import playwright" 2>/dev/null || $(PY) -m pip install -q playwright \
 	  || echo "note: could not install playwright; the browser tests will be skipped"
 
-test-rust:
+test-rust: lint
 	cargo test --release -p multipendulum-core -p multipendulum-wasm -q
+
+# The Rust crates' form, checked before their tests (seconds): rustfmt's layout (rustfmt.toml),
+# clippy on every target with its warnings as errors, and the developer documentation (private
+# items included, as the crates document themselves) with no broken or ambiguous link.
+lint:
+	cargo fmt --all --check
+	cargo clippy --workspace --release --all-targets -q -- -D warnings
+	RUSTDOCFLAGS="-D warnings" cargo doc --workspace --no-deps --document-private-items -q
 
 # tests/test_wheel.py also builds the wheel (`pip wheel .`) and runs it in a fresh venv.
 test-python: build-test browser
