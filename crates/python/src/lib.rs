@@ -49,7 +49,7 @@ pub(crate) fn to_py(py: Python<'_>, e: Error) -> PyErr {
     }
 }
 
-/// A one-dimensional NumPy array handed to Python (the results, moved in without copying).
+/// A one-dimensional NumPy array returned to Python.
 pub(crate) type Array<'py, T = f64> = Bound<'py, PyArray1<T>>;
 
 pub(crate) fn slice<'a>(name: &str, a: &'a PyReadonlyArray1<'_, f64>) -> PyResult<&'a [f64]> {
