@@ -51,8 +51,11 @@ test-rust: lint
 
 # The Rust crates' form, checked before their tests (seconds): rustfmt's layout (rustfmt.toml),
 # clippy on every target with its warnings as errors, and the developer documentation (private
-# items included, as the crates document themselves) with no broken or ambiguous link.
+# items included, as the crates document themselves) with no broken or ambiguous link. rustfmt and
+# clippy are added with rustup if the toolchain came without them (as `wasm` adds its target).
 lint:
+	@cargo fmt --version >/dev/null 2>&1 || rustup component add rustfmt
+	@cargo clippy --version >/dev/null 2>&1 || rustup component add clippy
 	cargo fmt --all --check
 	cargo clippy --workspace --release --all-targets -q -- -D warnings
 	RUSTDOCFLAGS="-D warnings" cargo doc --workspace --no-deps --document-private-items -q
