@@ -2,9 +2,11 @@
 //! the fdlibm kernels (within 1 ulp of glibc's), compiled for AVX-512, AVX2 and portable code and
 //! chosen at run time ([`Path`]). Every fused product-sum is an explicit `mul_add` (one correctly
 //! rounded operation: a hardware FMA on the AVX paths, glibc's exact `fma()` on the portable one),
-//! so every path gives the same bits. Used by the flip-map kernel (a lane per trajectory) and by
-//! the O(N) recursion for chains of eight or more links ([`sin_cos_slice`]), where it took a third
-//! off the cost per link, and by the double pendulum's closed forms ([`sin_cos_pair`]).
+//! so every path gives the same bits. Where every angle of a call is under pi/4 the reduction is
+//! skipped (there it returns the angle itself: the same bits, a third less latency). Used by the
+//! flip-map kernel (a lane per trajectory) and by the O(N) recursion for chains of eight or more
+//! links ([`sin_cos_slice`]), where it took a third off the cost per link, and by the double
+//! pendulum's closed forms ([`sin_cos_pair`]).
 #![allow(clippy::excessive_precision)] // fdlibm's constants, digit for digit
 
 /// Values computed together: one AVX-512 register of f64, two AVX2 registers.
@@ -125,7 +127,29 @@ pub(crate) fn sin_cos_reduced(x: f64) -> (f64, f64) {
     let w = n * P2T - ((t - r) - w);
     let y0 = r - w;
     let y1 = (r - y0) - w;
-    // The kernels on y0 + y1 in [-pi/4, pi/4] (FreeBSD's __kernel_sin / __kernel_cos).
+    let (ks, kc) = kernels(y0, y1);
+    // Quadrant n mod 4: sin = (ks, kc, -ks, -kc), cos = (kc, -ks, -kc, ks).
+    let odd = q & 1 != 0;
+    let (a, b) = if odd { (kc, ks) } else { (ks, kc) };
+    let sin = f64::from_bits(a.to_bits() ^ ((q & 2) << 62));
+    let cos = f64::from_bits(b.to_bits() ^ (((q + 1) & 2) << 62));
+    (sin, cos)
+}
+
+/// Below this |x|, `x * 2/pi` rounds to n = 0 (pi/4 = 0.785..), and the reduction above leaves
+/// `y0 = x`, `y1 = +0` exactly and the quadrant's signs alone: [`sin_cos_small`] skips it.
+pub(crate) const SMALL: f64 = 0.78;
+
+/// [`sin_cos_reduced`] for |x| < [`SMALL`], without the reduction: the same kernels on the same
+/// `(y0, y1) = (x, +0)`, so the same bits (tests compare the two), about a third less latency.
+#[inline(always)]
+pub(crate) fn sin_cos_small(x: f64) -> (f64, f64) {
+    kernels(x, 0.0)
+}
+
+/// FreeBSD's `__kernel_sin` and `__kernel_cos` on `y0 + y1` in [-pi/4, pi/4].
+#[inline(always)]
+fn kernels(y0: f64, y1: f64) -> (f64, f64) {
     let z = y0 * y0;
     let zz = z * z;
     let rs = (z * zz).mul_add(z.mul_add(S6, S5), z.mul_add(z.mul_add(S4, S3), S2));
@@ -135,20 +159,26 @@ pub(crate) fn sin_cos_reduced(x: f64) -> (f64, f64) {
     let hz = 0.5 * z;
     let wc = 1.0 - hz;
     let kc = wc + (((1.0 - wc) - hz) + z.mul_add(rc, -(y0 * y1)));
-    // Quadrant n mod 4: sin = (ks, kc, -ks, -kc), cos = (kc, -ks, -kc, ks).
-    let odd = q & 1 != 0;
-    let (a, b) = if odd { (kc, ks) } else { (ks, kc) };
-    let sin = f64::from_bits(a.to_bits() ^ ((q & 2) << 62));
-    let cos = f64::from_bits(b.to_bits() ^ (((q + 1) & 2) << 62));
-    (sin, cos)
+    (ks, kc)
 }
 
 /// `sin` and `cos` of every lane (of a [`Lane`], or of any width `W` a kernel steps at once);
-/// lanes outside the reduction's range (or not finite) take the scalar route. Each lane's value
-/// is its own, whatever the width.
+/// lanes outside the reduction's range (or not finite) take the scalar route, and when every lane
+/// is small the reduction is skipped ([`sin_cos_small`]). Each lane's value is its own, whatever
+/// the width and whatever its neighbours.
 #[inline(always)]
 pub fn sin_cos<const W: usize>(x: &[f64; W]) -> ([f64; W], [f64; W]) {
     let (mut s, mut c) = ([0.0; W], [0.0; W]);
+    let mut small = true;
+    for v in x {
+        small &= v.abs() < SMALL;
+    }
+    if small {
+        for i in 0..W {
+            (s[i], c[i]) = sin_cos_small(x[i]);
+        }
+        return (s, c);
+    }
     for i in 0..W {
         (s[i], c[i]) = sin_cos_reduced(x[i]);
     }
@@ -226,7 +256,9 @@ unsafe fn sin_cos_pair_fma(a: f64, b: f64) -> [(f64, f64); 2] {
 /// the same bits, slowly).
 #[inline(always)]
 pub fn sin_cos_pair_within(a: f64, b: f64) -> [(f64, f64); 2] {
-    if a.abs() <= REDUCE_LIMIT && b.abs() <= REDUCE_LIMIT {
+    if a.abs() < SMALL && b.abs() < SMALL {
+        [sin_cos_small(a), sin_cos_small(b)]
+    } else if a.abs() <= REDUCE_LIMIT && b.abs() <= REDUCE_LIMIT {
         [sin_cos_reduced(a), sin_cos_reduced(b)]
     } else {
         [super::sin_cos(a), super::sin_cos(b)]
@@ -313,6 +345,25 @@ pub(crate) mod tests {
                 assert!(ulps(s[i], gs) <= 1 && ulps(c[i], gc) <= 1, "x = {}", x[i]);
             }
         }
+    }
+
+    #[test]
+    fn the_small_angles_skip_the_reduction_and_keep_every_bit() {
+        // Dense over (-SMALL, SMALL), its ends, signed zeros, subnormals and tiny values.
+        let below = f64::from_bits(SMALL.to_bits() - 1);
+        let mut xs: Vec<f64> = (0..400_001).map(|i| (i as f64 - 200_000.0) / 200_000.0 * below).collect();
+        xs.extend([0.0, -0.0, 5e-324, -5e-324, 1e-300, 1e-160, -1e-8, below, -below, 0.5, 0.3]);
+        for x in xs {
+            let (s, c) = sin_cos_small(x);
+            let (rs, rc) = sin_cos_reduced(x);
+            assert_eq!((s.to_bits(), c.to_bits()), (rs.to_bits(), rc.to_bits()), "x = {x:e}");
+            // In lanes: all small (no reduction) or beside a large neighbour (reduced), alike.
+            let (alone, _) = sin_cos(&[x; LANES]);
+            let (beside, _) = sin_cos(&each(|i| if i == 0 { x } else { 2.0 }));
+            assert_eq!(alone[0].to_bits(), beside[0].to_bits(), "x = {x:e}");
+        }
+        // The bound is what makes the reduction's n zero: pi/4 is beyond it, its quadrant is not.
+        assert!(SMALL < std::f64::consts::FRAC_PI_4 && SMALL.mul_add(TWO_OVER_PI, ROUND) == ROUND);
     }
 
     #[test]
