@@ -362,7 +362,7 @@ pub(crate) mod tests {
             let (beside, _) = sin_cos(&each(|i| if i == 0 { x } else { 2.0 }));
             assert_eq!(alone[0].to_bits(), beside[0].to_bits(), "x = {x:e}");
         }
-        // The bound is what makes the reduction's n zero: pi/4 is beyond it, its quadrant is not.
+        // The bound itself lies below pi/4 and rounds to n = 0, so every angle under it does.
         assert!(SMALL < std::f64::consts::FRAC_PI_4 && SMALL.mul_add(TWO_OVER_PI, ROUND) == ROUND);
     }
 
