@@ -106,10 +106,13 @@ def test_no_flip_where_the_energy_forbids_it(monkeypatch, name):
     assert np.isfinite(fm.times[fm.allowed]).mean() > 0.2
 
 
-def test_a_blow_up_raises_integration_error(monkeypatch):
-    monkeypatch.setenv(SWITCH, "auto")
-    with pytest.raises(mp.IntegrationError, match="non-finite"):
-        mp.flip_times(CHAINS["point"], [[0.1, 0.2], [0.1, 0.2]], [[0.0, 0.0], [1e200, 0.0]], t_max=1.0)
+@pytest.mark.parametrize("route", ["auto", "generic", "scalar"])
+def test_a_blow_up_raises_integration_error_naming_its_row(monkeypatch, route):
+    monkeypatch.setenv(SWITCH, route)
+    omega = np.zeros((1500, 2))
+    omega[1234, 0] = 1e200
+    with pytest.raises(mp.IntegrationError, match="trajectory 1234: .*non-finite"):
+        mp.flip_times(CHAINS["point"], np.full((1500, 2), 0.1), omega, t_max=1.0)
 
 
 def test_an_unknown_route_is_refused(monkeypatch):

@@ -23,6 +23,16 @@ impl Error {
     pub fn integration(t: f64, reason: impl Into<String>) -> Self {
         Error::Integration { t, reason: reason.into() }
     }
+
+    /// This error of row `i` of a batch, named in its message (`trajectory 7: ...`); an
+    /// interruption or a failed user function stays as it is.
+    pub fn of_trajectory(self, i: usize) -> Self {
+        match self {
+            Error::Input(m) => Error::Input(format!("trajectory {i}: {m}")),
+            Error::Integration { t, reason } => Error::Integration { t, reason: format!("trajectory {i}: {reason}") },
+            other => other,
+        }
+    }
 }
 
 impl fmt::Display for Error {

@@ -98,10 +98,7 @@ pub fn ensemble(
     crate::run::simulate::check_fixed_steps(&settings, t_end)?;
     for i in 0..b {
         let rows = (&theta0[n * i..n * (i + 1)], &omega0[n * i..n * (i + 1)]);
-        chain.check_state("theta0", rows.0).and_then(|_| chain.check_state("omega0", rows.1)).map_err(|e| match e {
-            Error::Input(m) => Error::Input(format!("trajectory {i}: {m}")),
-            other => other,
-        })?;
+        chain.check_state("theta0", rows.0).and_then(|_| chain.check_state("omega0", rows.1)).map_err(|e| e.of_trajectory(i))?;
     }
     let parts: Vec<Ensemble> = theta0
         .par_chunks(n * CHUNK)
@@ -234,7 +231,7 @@ impl Rows<'_> {
 
     /// An integration error of row `r` (its index in the batch named).
     fn error(&self, r: usize, t: f64, reason: &str) -> Error {
-        Error::integration(t, format!("trajectory {}: {reason}", self.first + r))
+        Error::integration(t, reason).of_trajectory(self.first + r)
     }
 
     /// Row `r`'s final state at `t_end` (lane `j` of `y`) and its reductions: the momenta and

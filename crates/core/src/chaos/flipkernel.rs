@@ -182,10 +182,11 @@ impl Lanes {
 }
 
 /// The run of one chunk: `out[j]` for the rows `theta0[2j..2j+2]`, `omega0[2j..2j+2]`.
-/// `links[k]`: whether link `k` counts as a flip.
+/// `links[k]`: whether link `k` counts as a flip; `first`: the chunk's first row in the batch
+/// (an error names its row as the per-trajectory route does).
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn run_chunk(c: &Coef, theta0: &[f64], omega0: &[f64], steps: u64, dt: f64, links: [bool; 2], stop: &Watch, out: &mut [f64]) -> Result<()> {
+fn run_chunk(c: &Coef, theta0: &[f64], omega0: &[f64], steps: u64, dt: f64, links: [bool; 2], (stop, first): (&Watch, usize), out: &mut [f64]) -> Result<()> {
     let mut lanes = Lanes { y: [[0.0; W]; 4], step: [0; W], id: [0; W], active: [false; W], next: 0 };
     let mut det = [0.0; W];
     let mut live = 0;
@@ -205,7 +206,7 @@ fn run_chunk(c: &Coef, theta0: &[f64], omega0: &[f64], steps: u64, dt: f64, link
             let t = lanes.step[i] as f64 * dt;
             let t = [t, t + 0.5 * dt, t + 0.5 * dt, t + dt][stage];
             let reason = if det[i].is_nan() { NON_FINITE.to_string() } else { Singular(0).reason() };
-            return Err(Error::integration(t, reason));
+            return Err(Error::integration(t, reason).of_trajectory(first + lanes.id[i]));
         }
         let mut event = false;
         for i in 0..W {
@@ -227,7 +228,7 @@ fn run_chunk(c: &Coef, theta0: &[f64], omega0: &[f64], steps: u64, dt: f64, link
                 out[lanes.id[i]] = flip_time(t, dt, (y0[k][i], y0[2 + k][i]), (lanes.y[k][i], lanes.y[2 + k][i]));
             } else if lanes.step[i] >= steps {
                 if !(0..4).all(|m| lanes.y[m][i].is_finite()) {
-                    return Err(Error::integration(t + dt, NON_FINITE));
+                    return Err(Error::integration(t + dt, NON_FINITE).of_trajectory(first + lanes.id[i]));
                 }
                 out[lanes.id[i]] = f64::INFINITY;
             } else {
@@ -243,27 +244,55 @@ fn run_chunk(c: &Coef, theta0: &[f64], omega0: &[f64], steps: u64, dt: f64, link
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,fma")]
 #[allow(clippy::too_many_arguments)]
-unsafe fn run_chunk_avx512(c: &Coef, th: &[f64], om: &[f64], steps: u64, dt: f64, links: [bool; 2], stop: &Watch, out: &mut [f64]) -> Result<()> {
-    run_chunk(c, th, om, steps, dt, links, stop, out)
+unsafe fn run_chunk_avx512(
+    c: &Coef,
+    th: &[f64],
+    om: &[f64],
+    steps: u64,
+    dt: f64,
+    links: [bool; 2],
+    (stop, first): (&Watch, usize),
+    out: &mut [f64],
+) -> Result<()> {
+    run_chunk(c, th, om, steps, dt, links, (stop, first), out)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 #[allow(clippy::too_many_arguments)]
-unsafe fn run_chunk_avx2(c: &Coef, th: &[f64], om: &[f64], steps: u64, dt: f64, links: [bool; 2], stop: &Watch, out: &mut [f64]) -> Result<()> {
-    run_chunk(c, th, om, steps, dt, links, stop, out)
+unsafe fn run_chunk_avx2(
+    c: &Coef,
+    th: &[f64],
+    om: &[f64],
+    steps: u64,
+    dt: f64,
+    links: [bool; 2],
+    (stop, first): (&Watch, usize),
+    out: &mut [f64],
+) -> Result<()> {
+    run_chunk(c, th, om, steps, dt, links, (stop, first), out)
 }
 
 #[allow(clippy::too_many_arguments)]
-fn run_chunk_on(path: Path, c: &Coef, th: &[f64], om: &[f64], steps: u64, dt: f64, links: [bool; 2], stop: &Watch, out: &mut [f64]) -> Result<()> {
+fn run_chunk_on(
+    path: Path,
+    c: &Coef,
+    th: &[f64],
+    om: &[f64],
+    steps: u64,
+    dt: f64,
+    links: [bool; 2],
+    (stop, first): (&Watch, usize),
+    out: &mut [f64],
+) -> Result<()> {
     assert!(path.available(), "the {} kernel needs a CPU feature this one lacks", path.name());
     match path {
         // SAFETY: the CPU has the feature (checked just above).
         #[cfg(target_arch = "x86_64")]
-        Path::Avx512 => unsafe { run_chunk_avx512(c, th, om, steps, dt, links, stop, out) },
+        Path::Avx512 => unsafe { run_chunk_avx512(c, th, om, steps, dt, links, (stop, first), out) },
         #[cfg(target_arch = "x86_64")]
-        Path::Avx2 => unsafe { run_chunk_avx2(c, th, om, steps, dt, links, stop, out) },
-        _ => run_chunk(c, th, om, steps, dt, links, stop, out),
+        Path::Avx2 => unsafe { run_chunk_avx2(c, th, om, steps, dt, links, (stop, first), out) },
+        _ => run_chunk(c, th, om, steps, dt, links, (stop, first), out),
     }
 }
 
@@ -287,10 +316,11 @@ pub(crate) fn first_flips_double(
     let parts: Vec<Vec<f64>> = theta0
         .par_chunks(2 * CHUNK)
         .zip(omega0.par_chunks(2 * CHUNK))
-        .map(|(th, om)| {
+        .enumerate()
+        .map(|(k, (th, om))| {
             let mut out = vec![0.0; th.len() / 2];
             stop.check(0.0)?;
-            run_chunk_on(path, &c, th, om, steps, dt, links, stop, &mut out)?;
+            run_chunk_on(path, &c, th, om, steps, dt, links, (stop, k * CHUNK), &mut out)?;
             stop.add_units(out.len() as u64);
             Ok(out)
         })
@@ -361,17 +391,17 @@ impl ChainLanes {
         self.live -= usize::from(was);
     }
 
-    /// After a step of this group (`stepped`, from `y0` to `y`): its failure as an error, and
-    /// each lane whose row flipped or ran its `steps` out written to `out` and loaded anew.
+    /// After a step of this group (`stepped`, from `y0` to `y`): its failure as an error naming
+    /// the row (`first`: the chunk's first row in the batch), and each lane whose row flipped or
+    /// ran its `steps` out written to `out` and loaded anew.
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
     fn settle(
         &mut self,
         stepped: Stepped,
-        steps: u64,
-        dt: f64,
+        (steps, dt): (u64, f64),
         links: &[usize],
-        next: &mut usize,
+        (next, first): (&mut usize, usize),
         theta0: &[f64],
         omega0: &[f64],
         out: &mut [f64],
@@ -382,11 +412,11 @@ impl ChainLanes {
             Err((stage, bad)) => {
                 let i = (0..LANES).find(|&i| bad.lanes[i]).unwrap_or(0);
                 let t = failed_at(&bad, i, stage, self.step[i] as f64 * dt, dt);
-                return Err(Error::integration(t, bad.reason(i)));
+                return Err(Error::integration(t, bad.reason(i)).of_trajectory(first + self.id[i]));
             }
         };
         if let Some(i) = (0..LANES).find(|&i| nonfinite[i]) {
-            return Err(Error::integration((self.step[i] + 1) as f64 * dt, NON_FINITE));
+            return Err(Error::integration((self.step[i] + 1) as f64 * dt, NON_FINITE).of_trajectory(first + self.id[i]));
         }
         // The largest |theta| of the watched links, link by link over whole lanes (vectorised;
         // a test per lane and link was a seventh of the generic double pendulum's time).
@@ -441,7 +471,7 @@ fn run_chunk_chain(
     dt: f64,
     links: &[usize],
     (drive, pivot): (Option<&Timed>, Option<&Pivot>),
-    stop: &Watch,
+    (stop, first): (&Watch, usize),
     out: &mut [f64],
 ) -> Result<()> {
     // A chain on a cart carries the cart's x and v after its angles and rates; a driven one, its
@@ -477,7 +507,7 @@ fn run_chunk_chain(
         };
         for (s, stepped) in [a, b].into_iter().zip(stepped) {
             if let Some(stepped) = stepped {
-                s.settle(stepped, steps, dt, links, &mut next, theta0, omega0, out)?;
+                s.settle(stepped, (steps, dt), links, (&mut next, first), theta0, omega0, out)?;
             }
         }
     }
@@ -495,10 +525,10 @@ unsafe fn run_chunk_chain_avx512(
     dt: f64,
     links: &[usize],
     drive: (Option<&Timed>, Option<&Pivot>),
-    stop: &Watch,
+    (stop, first): (&Watch, usize),
     out: &mut [f64],
 ) -> Result<()> {
-    run_chunk_chain(chain, th, om, steps, dt, links, drive, stop, out)
+    run_chunk_chain(chain, th, om, steps, dt, links, drive, (stop, first), out)
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -512,10 +542,10 @@ unsafe fn run_chunk_chain_avx2(
     dt: f64,
     links: &[usize],
     drive: (Option<&Timed>, Option<&Pivot>),
-    stop: &Watch,
+    (stop, first): (&Watch, usize),
     out: &mut [f64],
 ) -> Result<()> {
-    run_chunk_chain(chain, th, om, steps, dt, links, drive, stop, out)
+    run_chunk_chain(chain, th, om, steps, dt, links, drive, (stop, first), out)
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -528,17 +558,17 @@ fn run_chunk_chain_on(
     dt: f64,
     links: &[usize],
     drive: (Option<&Timed>, Option<&Pivot>),
-    stop: &Watch,
+    (stop, first): (&Watch, usize),
     out: &mut [f64],
 ) -> Result<()> {
     assert!(path.available(), "the {} kernel needs a CPU feature this one lacks", path.name());
     match path {
         // SAFETY: the CPU has the feature (checked just above).
         #[cfg(target_arch = "x86_64")]
-        Path::Avx512 => unsafe { run_chunk_chain_avx512(chain, th, om, steps, dt, links, drive, stop, out) },
+        Path::Avx512 => unsafe { run_chunk_chain_avx512(chain, th, om, steps, dt, links, drive, (stop, first), out) },
         #[cfg(target_arch = "x86_64")]
-        Path::Avx2 => unsafe { run_chunk_chain_avx2(chain, th, om, steps, dt, links, drive, stop, out) },
-        _ => run_chunk_chain(chain, th, om, steps, dt, links, drive, stop, out),
+        Path::Avx2 => unsafe { run_chunk_chain_avx2(chain, th, om, steps, dt, links, drive, (stop, first), out) },
+        _ => run_chunk_chain(chain, th, om, steps, dt, links, drive, (stop, first), out),
     }
 }
 
@@ -566,10 +596,11 @@ pub(crate) fn first_flips_chain(
     let parts: Vec<Vec<f64>> = theta0
         .par_chunks(n * CHUNK)
         .zip(omega0.par_chunks(n * CHUNK))
-        .map(|(th, om)| {
+        .enumerate()
+        .map(|(k, (th, om))| {
             let mut out = vec![0.0; th.len() / n];
             stop.check(0.0)?;
-            run_chunk_chain_on(path, chain, th, om, steps, dt, &links, drive, stop, &mut out)?;
+            run_chunk_chain_on(path, chain, th, om, steps, dt, &links, drive, (stop, k * CHUNK), &mut out)?;
             stop.add_units(out.len() as u64);
             Ok(out)
         })
@@ -859,14 +890,46 @@ mod tests {
         let chain = &chains_of(3)[0];
         let e = first_flips_chain(chain, &[0.1; 6], &[0.0, 0.0, 0.0, 1e200, 0.0, 0.0], 100, 0.01, None, (None, None), Path::best(), &go()).unwrap_err();
         // Named as the scalar route names a blow-up, not as a singular mass matrix.
-        assert!(matches!(&e, Error::Integration { reason, .. } if reason == NON_FINITE), "{e}");
+        assert!(matches!(&e, Error::Integration { reason, .. } if reason == &format!("trajectory 1: {NON_FINITE}")), "{e}");
+    }
+
+    /// The reason of an integration error.
+    fn reason(e: Error) -> String {
+        match e {
+            Error::Integration { reason, .. } => reason,
+            other => panic!("{other}"),
+        }
     }
 
     #[test]
     fn a_blow_up_is_an_integration_error_not_a_silent_value() {
         let chain = Chain::new(&[1.0, 1.0], &[1.0, 1.0], None, None, 9.81).unwrap();
         let e = first_flips_double(&chain, &[0.1, 0.1, 0.2, 0.2], &[0.0, 0.0, 1e200, 0.0], 100, 0.01, None, Path::best(), &go()).unwrap_err();
-        assert!(matches!(e, Error::Integration { .. }), "{e}");
-        assert!(e.to_string().contains("non-finite"), "{e}");
+        assert_eq!(reason(e), format!("trajectory 1: {NON_FINITE}"));
+    }
+
+    #[test]
+    fn a_blow_up_names_its_row_in_any_chunk_on_every_path_and_as_the_scalar_route() {
+        // The row that blows up sits in the second chunk of rows (each path splits the rows
+        // into chunks for the threads and names the row by its index in the whole batch).
+        let row = CHUNK + 3;
+        for n in [2, 3] {
+            let chain = &chains_of(n)[0];
+            let rows = CHUNK + 8;
+            let th = vec![0.1; n * rows];
+            let mut om = vec![0.0; n * rows];
+            om[n * row] = 1e200;
+            let want = format!("trajectory {row}: {NON_FINITE}");
+            let scalar = first_flips_scalar(chain, &th, &om, 1.0, 0.01, None, &Builtin::None, None, &go()).unwrap_err();
+            assert_eq!(reason(scalar), want, "N = {n}, scalar");
+            for path in Path::ALL.into_iter().filter(|p| p.available()) {
+                let lanes = first_flips_chain(chain, &th, &om, 100, 0.01, None, (None, None), path, &go()).unwrap_err();
+                assert_eq!(reason(lanes), want, "N = {n}, lanes on {}", path.name());
+                if n == 2 {
+                    let kernel = first_flips_double(chain, &th, &om, 100, 0.01, None, path, &go()).unwrap_err();
+                    assert_eq!(reason(kernel), want, "the kernel on {}", path.name());
+                }
+            }
+        }
     }
 }

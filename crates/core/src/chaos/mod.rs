@@ -275,7 +275,8 @@ pub fn flip_energy_threshold(chain: &Chain, link: Option<usize>) -> Result<f64> 
 /// reaches pi (`link = None`: any link), integrating with rk4 at step `dt` up to `t_max`; the
 /// crossing is located by bisection on the cubic Hermite interpolant of the step. Never: +inf;
 /// a row that starts beyond pi: 0. Runs in parallel; each result is independent of the number
-/// of threads.
+/// of threads. An integration error (a blow-up, a singular configuration) names its row
+/// (`trajectory 7: ...`) on every path.
 ///
 /// Undriven ideal chains go through the SIMD kernels of [`flipkernel`] (the same steps, with
 /// their own `sin`/`cos`, so they agree with the per-trajectory path to round-off): the double
@@ -430,13 +431,14 @@ pub fn first_flips_scalar(
     theta0
         .par_chunks(n)
         .zip(omega0.par_chunks(n))
+        .enumerate()
         .map_init(
             || {
                 let sys = ChainSystem::new(chain, torque.clone(), Form::Lagrangian).with_drive(base.clone()).expect("checked above");
                 let d = sys.dim();
                 (sys, Rk4::new(d))
             },
-            |(sys, rk), (th, om)| {
+            |(sys, rk), (i, (th, om))| {
                 watch.check(0.0)?;
                 let pi = std::f64::consts::PI;
                 if links.iter().any(|&k| th[k].abs() >= pi) {
@@ -468,7 +470,7 @@ pub fn first_flips_scalar(
                     Ok(f64::INFINITY)
                 })();
                 watch.add_units(1);
-                flip
+                flip.map_err(|e| e.of_trajectory(i))
             },
         )
         .collect()

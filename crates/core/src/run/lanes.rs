@@ -69,10 +69,7 @@ pub fn simulate(
 ) -> Result<Vec<Trajectory>> {
     let n = chain.n();
     for (i, (th, om)) in theta0.chunks(n).zip(omega0.chunks(n)).enumerate() {
-        chain.check_state("theta0", th).and_then(|_| chain.check_state("omega0", om)).map_err(|e| match e {
-            Error::Input(m) => Error::Input(format!("trajectory {i}: {m}")),
-            other => other,
-        })?;
+        chain.check_state("theta0", th).and_then(|_| chain.check_state("omega0", om)).map_err(|e| e.of_trajectory(i))?;
     }
     super::simulate::check_cart0(chain, settings)?;
     let layout = layout(chain, drive, &settings.drive)?;
@@ -212,7 +209,7 @@ fn run_group(g: &Group, watch: &Watch) -> Result<Vec<Trajectory>> {
         g.load(j, start, &mut y, j);
         active[j] = 1.0;
     }
-    let error = |j: usize, t: f64, reason: &str| Error::integration(t, format!("trajectory {}: {reason}", g.first + j));
+    let error = |j: usize, t: f64, reason: &str| Error::integration(t, reason).of_trajectory(g.first + j);
     // A row of every lane into its recorder: the driver's raw state (the losses' slot holds the
     // energy dissipated, D; the lanes integrate their work, -D).
     let mut recs: Vec<Recorder> = (0..count).map(|_| Recorder::default()).collect();
@@ -404,7 +401,7 @@ fn dop853_rows(g: &Group, watch: &Watch) -> Result<Vec<Trajectory>> {
     let lanes = |k| vec![[0.0; LANES]; k];
     let (mut y, mut y_new, mut q, zero) = (lanes(d), lanes(d), lanes(n), lanes(n));
     let mut dp = Dop853Lanes::new(n, d, d, settings.rtol, settings.atol);
-    let error = |r: usize, t: f64, reason: &str| Error::integration(t, format!("trajectory {}: {reason}", g.first + r));
+    let error = |r: usize, t: f64, reason: &str| Error::integration(t, reason).of_trajectory(g.first + r);
     let mut done: Vec<Option<Trajectory>> = (0..count).map(|_| None).collect();
     let mut recs: Vec<Recorder> = (0..LANES).map(|_| Recorder::default()).collect();
     // Per lane: its row, its step control, output index and evaluations.

@@ -907,12 +907,8 @@ pub fn simulate_batch<T: TorqueSource + Clone + Send + Sync>(
         .map(|i| {
             watch.check(0.0)?;
             let range = i * n..(i + 1) * n;
-            let tr =
-                simulate(chain, &theta0[range.clone()], &omega0[range], t_end, settings, torque.clone(), &mut |t| watch.check(t)).map_err(|e| match e {
-                    Error::Input(m) => Error::Input(format!("trajectory {i}: {m}")),
-                    Error::Integration { t, reason } => Error::Integration { t, reason: format!("trajectory {i}: {reason}") },
-                    other => other,
-                })?;
+            let tr = simulate(chain, &theta0[range.clone()], &omega0[range], t_end, settings, torque.clone(), &mut |t| watch.check(t))
+                .map_err(|e| e.of_trajectory(i))?;
             watch.add_units(1);
             Ok(tr)
         })
