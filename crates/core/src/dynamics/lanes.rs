@@ -225,7 +225,28 @@ fn recursion(
     // Per lane, the first link (from the bottom) whose pivot failed, or -1: kept without a branch
     // per link, so the passes stay vectorised.
     let mut worst = [-1.0f64; LANES];
-    for a in (0..n).rev() {
+    // The bottom link first: nothing below it is folded in yet (G, w, c and s all zero), so its
+    // pivot is its own d, which passes the test, and the loop's operations reduce to these (the
+    // same values, bit for bit, for a finite state; a non-finite one is caught as such at the
+    // step's end): one division fewer in the chain of them that the elimination waits on.
+    {
+        let b = n - 1;
+        let (hb, inv) = (h[b], 1.0 / d[b]);
+        let (cos, sin, w, force) = (s.cos[b], s.sin[b], omega[b], out[b]);
+        let (mut uxs, mut uys) = ([0.0; LANES], [0.0; LANES]);
+        for i in 0..LANES {
+            let (nx, ny) = (cos[i], sin[i]);
+            let (ux, uy) = (hb * nx, hb * ny);
+            let w2h = w[i] * w[i] * hb;
+            (cd[i], sd[i]) = (w2h * nx, w2h * ny);
+            let rho = force[i];
+            (gxx[i], gxy[i], gyy[i]) = (ux * ux * inv, ux * uy * inv, uy * uy * inv);
+            (wx[i], wy[i]) = (ux * rho * inv, uy * rho * inv);
+            (uxs[i], uys[i]) = (ux, uy);
+        }
+        (s.ux[b], s.uy[b], s.dinv[b]) = (uxs, uys, [inv; LANES]);
+    }
+    for a in (0..n - 1).rev() {
         let (la, ha, da) = (l[a], h[a], d[a]);
         // The link's lanes in locals: stores into the scratch's buffers would otherwise keep
         // LLVM from vectorising across lanes (it cannot tell the buffers apart).
