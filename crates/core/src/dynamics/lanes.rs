@@ -1,10 +1,12 @@
 //! The ideal chain's accelerations for many states at once, in lanes (structure of arrays:
 //! `theta[link][lane]`): plain loops over fixed-size arrays that LLVM vectorises across states.
 //! The arithmetic is [`Chain::accelerations_into`]'s: the closed form of two links, the O(N)
-//! recursion (`eliminate`, `substitute`) otherwise, with the lanes' fdlibm `sin`/`cos`
-//! ([`crate::trig::lanes`], within 1 ulp of glibc's) and, as the flip kernel does, its
-//! product-sums fused by explicit `mul_add` (one correctly rounded operation: a hardware FMA on
-//! the AVX paths, glibc's exact `fma()` on the portable one, so every path gives the same bits).
+//! recursion (`eliminate`, `substitute`) otherwise, its terms regrouped so that one link's
+//! division waits on the one below through a single fused multiply-add (`recursion`), with
+//! the lanes' fdlibm `sin`/`cos` ([`crate::trig::lanes`], within 1 ulp of glibc's) and, as the
+//! flip kernel does, its product-sums fused by explicit `mul_add` (one correctly rounded
+//! operation: a hardware FMA on the AVX paths, glibc's exact `fma()` on the portable one, so
+//! every path gives the same bits).
 //! A state therefore agrees with the per-state route to round-off, not bit for bit.
 use super::general::saturating_tanh;
 use super::{Singular, PIVOT_TOL};
@@ -16,8 +18,9 @@ use crate::trig::lanes::{sin_cos, Lane, LANES};
 pub struct LaneScratch {
     sin: Vec<Lane>,
     cos: Vec<Lane>,
-    ux: Vec<Lane>,
-    uy: Vec<Lane>,
+    /// Per link, the elimination's `u / pivot` (x and y) and `1 / pivot`.
+    uxi: Vec<Lane>,
+    uyi: Vec<Lane>,
     dinv: Vec<Lane>,
     /// `sin` and `cos` hold the angles' trig already ([`LaneScratch::trig_of`]): the next
     /// accelerations take it instead of computing it again (and clear this).
@@ -27,7 +30,7 @@ pub struct LaneScratch {
 impl LaneScratch {
     pub fn new(n: usize) -> Self {
         let z = vec![[0.0; LANES]; n];
-        LaneScratch { sin: z.clone(), cos: z.clone(), ux: z.clone(), uy: z.clone(), dinv: z, known: false }
+        LaneScratch { sin: z.clone(), cos: z.clone(), uxi: z.clone(), uyi: z.clone(), dinv: z, known: false }
     }
 
     /// The angles' `sin` and `cos`, computed once for the forces of a moving pivot and the
@@ -219,69 +222,82 @@ fn recursion(
         }
         out[a] = f;
     }
-    // Backward elimination, with the links below folded in.
+    // Backward elimination. Each link's pivot needs the articulated inertia G of every link
+    // below it, and G of the link just below needs that link's pivot inverted: a chain of
+    // divisions. So the link just below stays pending (its u, 1/pivot and rho), G and w hold
+    // the links under it, and the pending link enters the pivot as one term,
+    // `pivot = d - l^2 n.G n - l^2 (n.u_p)^2 / pivot_p`, whose other parts are ready before the
+    // division below ends: the chain from one division to the next is a fused multiply-add.
     let (mut cd, mut sd) = ([0.0; LANES], [0.0; LANES]);
     let (mut gxx, mut gxy, mut gyy, mut wx, mut wy) = ([0.0; LANES], [0.0; LANES], [0.0; LANES], [0.0; LANES], [0.0; LANES]);
     // Per lane, the first link (from the bottom) whose pivot failed, or -1: kept without a branch
     // per link, so the passes stay vectorised.
     let mut worst = [-1.0f64; LANES];
-    // The bottom link first: nothing below it is folded in yet (G, w, c and s all zero), so its
-    // pivot is its own d, which passes the test, and the loop's operations reduce to these (the
-    // same values, bit for bit, for a finite state; a non-finite one is caught as such at the
-    // step's end): one division fewer in the chain of them that the elimination waits on.
+    // The bottom link first, pending: nothing is below it, so its pivot is its own d, which
+    // passes the test.
+    let b = n - 1;
+    let inv_b = 1.0 / d[b];
+    let (mut pux, mut puy, mut pinv, mut prho) = ([0.0; LANES], [0.0; LANES], [inv_b; LANES], out[b]);
     {
-        let b = n - 1;
-        let (hb, inv) = (h[b], 1.0 / d[b]);
-        let (cos, sin, w, force) = (s.cos[b], s.sin[b], omega[b], out[b]);
-        let (mut uxs, mut uys) = ([0.0; LANES], [0.0; LANES]);
+        let hb = h[b];
+        let (cos, sin, w) = (s.cos[b], s.sin[b], omega[b]);
+        let (mut uxi, mut uyi, mut rhoi) = ([0.0; LANES], [0.0; LANES], [0.0; LANES]);
         for i in 0..LANES {
             let (nx, ny) = (cos[i], sin[i]);
-            let (ux, uy) = (hb * nx, hb * ny);
+            (pux[i], puy[i]) = (hb * nx, hb * ny);
             let w2h = w[i] * w[i] * hb;
             (cd[i], sd[i]) = (w2h * nx, w2h * ny);
-            let rho = force[i];
-            (gxx[i], gxy[i], gyy[i]) = (ux * ux * inv, ux * uy * inv, uy * uy * inv);
-            (wx[i], wy[i]) = (ux * rho * inv, uy * rho * inv);
-            (uxs[i], uys[i]) = (ux, uy);
+            (uxi[i], uyi[i], rhoi[i]) = (pux[i] * inv_b, puy[i] * inv_b, prho[i] * inv_b);
         }
-        (s.ux[b], s.uy[b], s.dinv[b]) = (uxs, uys, [inv; LANES]);
+        (s.uxi[b], s.uyi[b], s.dinv[b], out[b]) = (uxi, uyi, [inv_b; LANES], rhoi);
     }
     for a in (0..n - 1).rev() {
         let (la, ha, da) = (l[a], h[a], d[a]);
+        let lla = la * la;
         // The link's lanes in locals: stores into the scratch's buffers would otherwise keep
         // LLVM from vectorising across lanes (it cannot tell the buffers apart).
         let (cos, sin, w, force) = (s.cos[a], s.sin[a], omega[a], out[a]);
         let link = a as f64;
-        let (mut uxs, mut uys, mut invs, mut rhos) = ([0.0; LANES], [0.0; LANES], [0.0; LANES], [0.0; LANES]);
+        let (mut uxis, mut uyis, mut invs, mut rhois) = ([0.0; LANES], [0.0; LANES], [0.0; LANES], [0.0; LANES]);
         for i in 0..LANES {
             let (nx, ny) = (cos[i], sin[i]);
+            // The links under the pending one, then the pending link's term.
             let (gnx, gny) = (gxx[i] * nx + gxy[i] * ny, gxy[i] * nx + gyy[i] * ny);
-            let pivot = da - la * la * (nx * gnx + ny * gny);
+            let under = da - lla * (nx * gnx + ny * gny);
+            let nu = nx * pux[i] + ny * puy[i];
+            let pivot = (-(lla * nu * nu)).mul_add(pinv[i], under);
             let fail = (active[i] > 0.0) & !(pivot > PIVOT_TOL * da);
             worst[i] = if fail { worst[i].max(link) } else { worst[i] };
             let inv = 1.0 / pivot;
-            let (ux, uy) = (ha * nx - la * gnx, ha * ny - la * gny);
+            let (puxi, puyi, prhoi) = (pux[i] * pinv[i], puy[i] * pinv[i], prho[i] * pinv[i]);
+            let (fgx, fgy) = (pux[i].mul_add(nu * pinv[i], gnx), puy[i].mul_add(nu * pinv[i], gny));
+            let (ux, uy) = (ha * nx - la * fgx, ha * ny - la * fgy);
             let extra = -la * (ny * cd[i] - nx * sd[i]);
             let w2h = w[i] * w[i] * ha;
             cd[i] += w2h * nx;
             sd[i] += w2h * ny;
-            let rho = force[i] + extra - la * (nx * wx[i] + ny * wy[i]);
-            gxx[i] += ux * ux * inv;
-            gxy[i] += ux * uy * inv;
-            gyy[i] += uy * uy * inv;
-            wx[i] += ux * rho * inv;
-            wy[i] += uy * rho * inv;
-            uxs[i] = ux;
-            uys[i] = uy;
-            invs[i] = inv;
-            rhos[i] = rho;
+            let nw = nu.mul_add(prhoi, nx * wx[i] + ny * wy[i]);
+            let rho = force[i] + extra - la * nw;
+            // The pending link joins the links under the next one.
+            gxx[i] = pux[i].mul_add(puxi, gxx[i]);
+            gxy[i] = pux[i].mul_add(puyi, gxy[i]);
+            gyy[i] = puy[i].mul_add(puyi, gyy[i]);
+            wx[i] = puxi.mul_add(prho[i], wx[i]);
+            wy[i] = puyi.mul_add(prho[i], wy[i]);
+            (pux[i], puy[i], pinv[i], prho[i]) = (ux, uy, inv, rho);
+            (uxis[i], uyis[i], invs[i], rhois[i]) = (ux * inv, uy * inv, inv, rho * inv);
         }
-        (s.ux[a], s.uy[a], s.dinv[a], out[a]) = (uxs, uys, invs, rhos);
+        (s.uxi[a], s.uyi[a], s.dinv[a], out[a]) = (uxis, uyis, invs, rhois);
     }
     let mut base = [0.0; LANES];
     if let Some(c) = cart {
         // The cart's row: (F + sum_b h_b sin(theta_b) w_b^2 - w_x) / (M_c + M - G_xx), the
-        // articulated inertia and bias at the base closing it (`accelerations_general`).
+        // articulated inertia and bias at the base closing it (`accelerations_general`), the
+        // top link (still pending) joined to them.
+        for i in 0..LANES {
+            gxx[i] = pux[i].mul_add(pux[i] * pinv[i], gxx[i]);
+            wx[i] = (pux[i] * pinv[i]).mul_add(prho[i], wx[i]);
+        }
         let total = chain.cart.map_or(0.0, |c| c.mass) + chain.total_mass();
         let mut pull = [0.0; LANES];
         for a in 0..n {
@@ -338,19 +354,19 @@ pub fn tangent(chain: &Chain, omega: &[Lane], accel: &[Lane], d_theta: &[Lane], 
     let (mut wx, mut wy) = ([0.0; LANES], [0.0; LANES]);
     for a in (0..n).rev() {
         let (sa, ca, w, dw, dth, acc) = (s.sin[a], s.cos[a], omega[a], d_omega[a], d_theta[a], accel[a]);
-        let (ux, uy, inv, r) = (s.ux[a], s.uy[a], s.dinv[a], out[a]);
+        let (uxi, uyi, inv, r) = (s.uxi[a], s.uyi[a], s.dinv[a], out[a]);
         let (ha, la) = (h[a], l[a]);
-        let mut rho = [0.0; LANES];
+        let mut rhoi = [0.0; LANES];
         for i in 0..LANES {
             let (c, sn, dt) = (ca[i], sa[i], dth[i]);
             let row = r[i] + la * coupled(&q, i, c, sn, dt);
             accumulate(&mut q, i, ha, c, sn, dt, (w[i], dw[i], acc[i]));
             let rh = row - la * (c * wx[i] + sn * wy[i]);
-            wx[i] += ux[i] * rh * inv[i];
-            wy[i] += uy[i] * rh * inv[i];
-            rho[i] = rh;
+            wx[i] = uxi[i].mul_add(rh, wx[i]);
+            wy[i] = uyi[i].mul_add(rh, wy[i]);
+            rhoi[i] = rh * inv[i];
         }
-        out[a] = rho;
+        out[a] = rhoi;
     }
     substitute(l, out, s, &[0.0; LANES]);
 }
@@ -414,21 +430,23 @@ fn tangent_double(
     (out[0], out[1]) = (a0, a1);
 }
 
-/// Forward substitution after the elimination (`out` holds the reduced right-hand side `rho`):
-/// `x_a = (rho_a - u_a . P_a) / pivot_a`, `P` the prefix sum of `l_b n_b x_b` from the base's
-/// acceleration `(base, 0)` (a cart's; zero on a fixed pivot).
+/// Forward substitution after the elimination (`out` holds the reduced right-hand side
+/// divided by the pivot, `rho / pivot`): `x_a = rho_a / pivot_a - (u_a / pivot_a) . P_a`, `P` the
+/// prefix sum of `l_b n_b x_b` from the base's acceleration `(base, 0)` (a cart's; zero on a
+/// fixed pivot). The divisions were taken by the elimination, so the chain from one link's
+/// `x` to the next is three fused multiply-adds.
 #[inline(always)]
 fn substitute(l: &[f64], out: &mut [Lane], s: &LaneScratch, base: &Lane) {
     let n = out.len();
     let (mut px, mut py) = (*base, [0.0; LANES]);
     for a in 0..n {
-        let (la, rho, ux, uy, inv, cos, sin) = (l[a], out[a], s.ux[a], s.uy[a], s.dinv[a], s.cos[a], s.sin[a]);
+        let (la, rhoi, uxi, uyi, cos, sin) = (l[a], out[a], s.uxi[a], s.uyi[a], s.cos[a], s.sin[a]);
         let mut x = [0.0; LANES];
         for i in 0..LANES {
-            let xa = (rho[i] - (ux[i] * px[i] + uy[i] * py[i])) * inv[i];
+            let xa = (-uxi[i]).mul_add(px[i], (-uyi[i]).mul_add(py[i], rhoi[i]));
             x[i] = xa;
-            px[i] += la * cos[i] * xa;
-            py[i] += la * sin[i] * xa;
+            px[i] = (la * cos[i]).mul_add(xa, px[i]);
+            py[i] = (la * sin[i]).mul_add(xa, py[i]);
         }
         out[a] = x;
     }

@@ -550,8 +550,10 @@ mod tests {
                         "{}",
                         what("stats")
                     );
-                    // Round-off grown by the chaotic rows over 83 steps.
-                    let tol = 1e-11;
+                    // Round-off grown by the chaotic rows over 83 steps: a change of one ulp in row 1's
+                    // initial angles moves the rods' final rates under the joint table by 1.9e-11
+                    // (the routes differ by 1.2e-11 there, by under 1e-12 in most rows).
+                    let tol = 1e-10;
                     close(&what("theta"), &g.theta, &w.theta, tol);
                     close(&what("omega"), &g.omega, &w.omega, tol);
                     close(&what("p"), &g.p, &w.p, tol);
