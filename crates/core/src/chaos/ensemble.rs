@@ -37,7 +37,7 @@ use crate::run::events::{Condition, EventSpec, Tracker};
 use crate::run::lanes::{lane_of, raw_row, LaneControl};
 use crate::run::simulate::Books;
 use crate::run::Settings;
-use crate::trig::lanes::{Lane, Path, LANES};
+use crate::trig::lanes::{on_path, Lane, Path, LANES};
 use crate::watch::Watch;
 
 /// Rows per parallel task.
@@ -123,58 +123,19 @@ pub fn ensemble(
     Ok(all)
 }
 
-#[allow(clippy::too_many_arguments)]
-fn run_chunk_on(
-    path: Path,
-    chain: &Chain,
-    th: &[f64],
-    om: &[f64],
-    t_end: f64,
-    settings: &Settings,
-    drive: Option<&Timed>,
-    first: usize,
-    watch: &Watch,
-) -> Result<Ensemble> {
-    match path {
-        // SAFETY: the path was checked available when chosen (`bank::requested`).
-        #[cfg(target_arch = "x86_64")]
-        Path::Avx512 => unsafe { run_chunk_avx512(chain, th, om, t_end, settings, drive, first, watch) },
-        #[cfg(target_arch = "x86_64")]
-        Path::Avx2 => unsafe { run_chunk_avx2(chain, th, om, t_end, settings, drive, first, watch) },
-        _ => run_chunk(chain, th, om, t_end, settings, drive, first, watch),
+on_path! {
+    fn run_chunk_on(
+        chain: &Chain,
+        th: &[f64],
+        om: &[f64],
+        t_end: f64,
+        settings: &Settings,
+        drive: Option<&Timed>,
+        first: usize,
+        watch: &Watch,
+    ) -> Result<Ensemble> {
+        run_chunk(chain, th, om, t_end, settings, drive, first, watch)
     }
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,fma")]
-#[allow(clippy::too_many_arguments)]
-unsafe fn run_chunk_avx512(
-    chain: &Chain,
-    th: &[f64],
-    om: &[f64],
-    t_end: f64,
-    settings: &Settings,
-    drive: Option<&Timed>,
-    first: usize,
-    watch: &Watch,
-) -> Result<Ensemble> {
-    run_chunk(chain, th, om, t_end, settings, drive, first, watch)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-#[allow(clippy::too_many_arguments)]
-unsafe fn run_chunk_avx2(
-    chain: &Chain,
-    th: &[f64],
-    om: &[f64],
-    t_end: f64,
-    settings: &Settings,
-    drive: Option<&Timed>,
-    first: usize,
-    watch: &Watch,
-) -> Result<Ensemble> {
-    run_chunk(chain, th, om, t_end, settings, drive, first, watch)
 }
 
 /// The rows of one chunk (`first`: the index of its first row in the batch, for messages).

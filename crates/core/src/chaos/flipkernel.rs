@@ -34,7 +34,7 @@ use crate::error::{Error, Result};
 use crate::integrators::lanes::{failed_at, step_system_pair, ChainLanes as Equations, Rk4Lanes, Stepped};
 use crate::model::Chain;
 use crate::par::*;
-use crate::trig::lanes::{each, sin_cos, Lane, Path, LANES};
+use crate::trig::lanes::{each, on_path, sin_cos, Lane, Path, LANES};
 use crate::watch::Watch;
 
 /// Trajectories per parallel task (each task refills its lanes from its own chunk).
@@ -241,58 +241,9 @@ fn run_chunk(c: &Coef, theta0: &[f64], omega0: &[f64], steps: u64, dt: f64, link
     Ok(())
 }
 
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,fma")]
-#[allow(clippy::too_many_arguments)]
-unsafe fn run_chunk_avx512(
-    c: &Coef,
-    th: &[f64],
-    om: &[f64],
-    steps: u64,
-    dt: f64,
-    links: [bool; 2],
-    (stop, first): (&Watch, usize),
-    out: &mut [f64],
-) -> Result<()> {
-    run_chunk(c, th, om, steps, dt, links, (stop, first), out)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-#[allow(clippy::too_many_arguments)]
-unsafe fn run_chunk_avx2(
-    c: &Coef,
-    th: &[f64],
-    om: &[f64],
-    steps: u64,
-    dt: f64,
-    links: [bool; 2],
-    (stop, first): (&Watch, usize),
-    out: &mut [f64],
-) -> Result<()> {
-    run_chunk(c, th, om, steps, dt, links, (stop, first), out)
-}
-
-#[allow(clippy::too_many_arguments)]
-fn run_chunk_on(
-    path: Path,
-    c: &Coef,
-    th: &[f64],
-    om: &[f64],
-    steps: u64,
-    dt: f64,
-    links: [bool; 2],
-    (stop, first): (&Watch, usize),
-    out: &mut [f64],
-) -> Result<()> {
-    assert!(path.available(), "the {} kernel needs a CPU feature this one lacks", path.name());
-    match path {
-        // SAFETY: the CPU has the feature (checked just above).
-        #[cfg(target_arch = "x86_64")]
-        Path::Avx512 => unsafe { run_chunk_avx512(c, th, om, steps, dt, links, (stop, first), out) },
-        #[cfg(target_arch = "x86_64")]
-        Path::Avx2 => unsafe { run_chunk_avx2(c, th, om, steps, dt, links, (stop, first), out) },
-        _ => run_chunk(c, th, om, steps, dt, links, (stop, first), out),
+on_path! {
+    fn run_chunk_on(c: &Coef, th: &[f64], om: &[f64], steps: u64, dt: f64, links: [bool; 2], watch: (&Watch, usize), out: &mut [f64]) -> Result<()> {
+        run_chunk(c, th, om, steps, dt, links, watch, out)
     }
 }
 
@@ -514,61 +465,19 @@ fn run_chunk_chain(
     Ok(())
 }
 
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,fma")]
-#[allow(clippy::too_many_arguments)]
-unsafe fn run_chunk_chain_avx512(
-    chain: &Chain,
-    th: &[f64],
-    om: &[f64],
-    steps: u64,
-    dt: f64,
-    links: &[usize],
-    drive: (Option<&Timed>, Option<&Pivot>),
-    (stop, first): (&Watch, usize),
-    out: &mut [f64],
-) -> Result<()> {
-    run_chunk_chain(chain, th, om, steps, dt, links, drive, (stop, first), out)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-#[allow(clippy::too_many_arguments)]
-unsafe fn run_chunk_chain_avx2(
-    chain: &Chain,
-    th: &[f64],
-    om: &[f64],
-    steps: u64,
-    dt: f64,
-    links: &[usize],
-    drive: (Option<&Timed>, Option<&Pivot>),
-    (stop, first): (&Watch, usize),
-    out: &mut [f64],
-) -> Result<()> {
-    run_chunk_chain(chain, th, om, steps, dt, links, drive, (stop, first), out)
-}
-
-#[allow(clippy::too_many_arguments)]
-fn run_chunk_chain_on(
-    path: Path,
-    chain: &Chain,
-    th: &[f64],
-    om: &[f64],
-    steps: u64,
-    dt: f64,
-    links: &[usize],
-    drive: (Option<&Timed>, Option<&Pivot>),
-    (stop, first): (&Watch, usize),
-    out: &mut [f64],
-) -> Result<()> {
-    assert!(path.available(), "the {} kernel needs a CPU feature this one lacks", path.name());
-    match path {
-        // SAFETY: the CPU has the feature (checked just above).
-        #[cfg(target_arch = "x86_64")]
-        Path::Avx512 => unsafe { run_chunk_chain_avx512(chain, th, om, steps, dt, links, drive, (stop, first), out) },
-        #[cfg(target_arch = "x86_64")]
-        Path::Avx2 => unsafe { run_chunk_chain_avx2(chain, th, om, steps, dt, links, drive, (stop, first), out) },
-        _ => run_chunk_chain(chain, th, om, steps, dt, links, drive, (stop, first), out),
+on_path! {
+    fn run_chunk_chain_on(
+        chain: &Chain,
+        th: &[f64],
+        om: &[f64],
+        steps: u64,
+        dt: f64,
+        links: &[usize],
+        drive: (Option<&Timed>, Option<&Pivot>),
+        watch: (&Watch, usize),
+        out: &mut [f64],
+    ) -> Result<()> {
+        run_chunk_chain(chain, th, om, steps, dt, links, drive, watch, out)
     }
 }
 

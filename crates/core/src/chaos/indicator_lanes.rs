@@ -19,7 +19,7 @@ use crate::error::Result;
 use crate::integrators::lanes::{LaneSystem, Rk4Lanes};
 use crate::model::Chain;
 use crate::par::*;
-use crate::trig::lanes::{each, Lane, Path, LANES};
+use crate::trig::lanes::{each, on_path, Lane, Path, LANES};
 use crate::watch::Watch;
 
 /// Rows per parallel task: eight groups.
@@ -59,7 +59,7 @@ pub fn indicators(
         .zip(omega0.par_chunks(n * CHUNK))
         .map(|(th, om)| {
             watch.check(0.0)?;
-            job.chunk_on(path, th, om)
+            chunk_on(path, &job, th, om)
         })
         .collect::<Result<_>>()?;
     Ok(parts.concat())
@@ -90,15 +90,20 @@ pub fn indicator(
         }
         observe(step, v);
     };
-    let got = match path {
-        // SAFETY: the path was checked available when chosen (`bank::requested`).
-        #[cfg(target_arch = "x86_64")]
-        Path::Avx512 => unsafe { group.run_avx512(&job, theta0, omega0, &mut history) },
-        #[cfg(target_arch = "x86_64")]
-        Path::Avx2 => unsafe { group.run_avx2(&job, theta0, omega0, &mut history) },
-        _ => group.run(&job, theta0, omega0, Some(&mut history)),
-    }?;
+    let got = run_observed(path, &mut group, &job, theta0, omega0, &mut history)?;
     Ok(got.map(|values| values[0]))
+}
+
+on_path! {
+    fn chunk_on(job: &Job, th: &[f64], om: &[f64]) -> Result<Vec<f64>> {
+        job.chunk(th, om)
+    }
+}
+
+on_path! {
+    fn run_observed(group: &mut Group, job: &Job, th: &[f64], om: &[f64], observe: &mut dyn FnMut(u64, f64)) -> Result<Option<Lane>> {
+        group.run(job, th, om, Some(observe))
+    }
 }
 
 /// What every group shares.
@@ -131,29 +136,6 @@ impl<'a> Job<'a> {
     ) -> Self {
         let drive = Timed::generalized(torque);
         Job { chain, drive, torque, pivot, steps, dt, which, start, deviations, watch }
-    }
-
-    fn chunk_on(&self, path: Path, th: &[f64], om: &[f64]) -> Result<Vec<f64>> {
-        match path {
-            // SAFETY: the path was checked available when chosen (`bank::requested`).
-            #[cfg(target_arch = "x86_64")]
-            Path::Avx512 => unsafe { self.chunk_avx512(th, om) },
-            #[cfg(target_arch = "x86_64")]
-            Path::Avx2 => unsafe { self.chunk_avx2(th, om) },
-            _ => self.chunk(th, om),
-        }
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx512f,fma")]
-    unsafe fn chunk_avx512(&self, th: &[f64], om: &[f64]) -> Result<Vec<f64>> {
-        self.chunk(th, om)
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2,fma")]
-    unsafe fn chunk_avx2(&self, th: &[f64], om: &[f64]) -> Result<Vec<f64>> {
-        self.chunk(th, om)
     }
 
     /// A chunk's rows, a group of eight lanes at a time.
@@ -314,18 +296,6 @@ impl Group {
             dq: lanes(n),
             trig: lanes(2 * n),
         }
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx512f,fma")]
-    unsafe fn run_avx512(&mut self, job: &Job, th: &[f64], om: &[f64], observe: &mut dyn FnMut(u64, f64)) -> Result<Option<Lane>> {
-        self.run(job, th, om, Some(observe))
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2,fma")]
-    unsafe fn run_avx2(&mut self, job: &Job, th: &[f64], om: &[f64], observe: &mut dyn FnMut(u64, f64)) -> Result<Option<Lane>> {
-        self.run(job, th, om, Some(observe))
     }
 
     /// The values of up to eight rows (`th`, `om`: `count x N`); `None` if any failed.

@@ -18,7 +18,7 @@ use crate::error::{Error, Result};
 use crate::integrators::lanes::{failed_at, step_cart_pair, Rk4Lanes, Stepped};
 use crate::model::Chain;
 use crate::par::each_shared;
-use crate::trig::lanes::{Lane, Path, LANES};
+use crate::trig::lanes::{on_path, Lane, Path, LANES};
 
 /// The environment variable that picks the route of the steppers: `auto` (the lanes
 /// on the best path), `scalar` (one [`super::live::Stepper`] per copy), or a lane path by name.
@@ -177,7 +177,7 @@ impl Bank {
             for s in shares.iter_mut() {
                 report_on(path, chain, dt, s.g, s.copies, s.states, s.balance);
                 if let (Some(task), Some((obs, reward, ended))) = (task, &mut s.outcome) {
-                    observe_on(s.states, row, &task.columns, obs);
+                    observe_on(path, s.states, row, &task.columns, obs);
                     task.outcome(chain, s.states, reward, ended);
                 }
             }
@@ -218,30 +218,13 @@ impl Bank {
     }
 }
 
-/// [`report`] on the chosen path: its energies' product-sums are `mul_add`s, a hardware FMA
-/// inside the path's `#[target_feature]` (the same correctly rounded value as the baseline
-/// build's call to `fma()`, which cost this report as much as two of the group's rk4 steps).
-fn report_on(path: Path, chain: &Chain, dt: f64, g: &mut Group, copies: &mut [Copy], states: &mut [f64], balance: &mut [f64]) {
-    match path {
-        // SAFETY: the path was checked available when chosen.
-        #[cfg(target_arch = "x86_64")]
-        Path::Avx512 => unsafe { report_avx512(chain, dt, g, copies, states, balance) },
-        #[cfg(target_arch = "x86_64")]
-        Path::Avx2 => unsafe { report_avx2(chain, dt, g, copies, states, balance) },
-        _ => report(chain, dt, g, copies, states, balance),
+on_path! {
+    /// [`report`] on the chosen path: its energies' product-sums are `mul_add`s, a hardware FMA
+    /// inside the path's `#[target_feature]` (the same correctly rounded value as the baseline
+    /// build's call to `fma()`, which cost this report as much as two of the group's rk4 steps).
+    fn report_on(chain: &Chain, dt: f64, g: &mut Group, copies: &mut [Copy], states: &mut [f64], balance: &mut [f64]) {
+        report(chain, dt, g, copies, states, balance)
     }
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,fma")]
-unsafe fn report_avx512(chain: &Chain, dt: f64, g: &mut Group, copies: &mut [Copy], states: &mut [f64], balance: &mut [f64]) {
-    report(chain, dt, g, copies, states, balance)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn report_avx2(chain: &Chain, dt: f64, g: &mut Group, copies: &mut [Copy], states: &mut [f64], balance: &mut [f64]) {
-    report(chain, dt, g, copies, states, balance)
 }
 
 /// Each copy of the group: its state row and `(t, energy, energy_error)` (the energies in lanes).
@@ -277,29 +260,12 @@ struct Share<'a> {
     outcome: Option<(&'a mut [f64], &'a mut [f64], &'a mut [bool])>,
 }
 
-/// The steps of one group or of two side by side, on the chosen path; the first failed copy
-/// (by index) of any of them.
-fn run_groups(path: Path, chain: &Chain, dt: f64, shares: &mut [Share], span: f64, active: &[bool]) -> Option<(usize, Error)> {
-    match path {
-        // SAFETY: the path was checked available when chosen.
-        #[cfg(target_arch = "x86_64")]
-        Path::Avx512 => unsafe { run_groups_avx512(chain, dt, shares, span, active) },
-        #[cfg(target_arch = "x86_64")]
-        Path::Avx2 => unsafe { run_groups_avx2(chain, dt, shares, span, active) },
-        _ => run_groups_body(chain, dt, shares, span, active),
+on_path! {
+    /// The steps of one group or of two side by side, on the chosen path; the first failed copy
+    /// (by index) of any of them.
+    fn run_groups(chain: &Chain, dt: f64, shares: &mut [Share], span: f64, active: &[bool]) -> Option<(usize, Error)> {
+        run_groups_body(chain, dt, shares, span, active)
     }
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,fma")]
-unsafe fn run_groups_avx512(chain: &Chain, dt: f64, shares: &mut [Share], span: f64, active: &[bool]) -> Option<(usize, Error)> {
-    run_groups_body(chain, dt, shares, span, active)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn run_groups_avx2(chain: &Chain, dt: f64, shares: &mut [Share], span: f64, active: &[bool]) -> Option<(usize, Error)> {
-    run_groups_body(chain, dt, shares, span, active)
 }
 
 #[inline(always)]

@@ -30,7 +30,7 @@ use crate::integrators::{Controller, Decision};
 use crate::interp::hermite;
 use crate::model::Chain;
 use crate::par::*;
-use crate::trig::lanes::{Lane, Path, LANES};
+use crate::trig::lanes::{on_path, Lane, Path, LANES};
 use crate::watch::Watch;
 
 /// Whether a batch with `settings` and the torque `drive` (`None`: one the lanes cannot
@@ -157,27 +157,10 @@ impl Group<'_> {
     }
 }
 
-fn group_on(path: Path, g: &Group, watch: &Watch) -> Result<Vec<Trajectory>> {
-    match path {
-        // SAFETY: the path was checked available when chosen (`bank::requested`).
-        #[cfg(target_arch = "x86_64")]
-        Path::Avx512 => unsafe { group_avx512(g, watch) },
-        #[cfg(target_arch = "x86_64")]
-        Path::Avx2 => unsafe { group_avx2(g, watch) },
-        _ => run_group(g, watch),
+on_path! {
+    fn group_on(g: &Group, watch: &Watch) -> Result<Vec<Trajectory>> {
+        run_group(g, watch)
     }
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,fma")]
-unsafe fn group_avx512(g: &Group, watch: &Watch) -> Result<Vec<Trajectory>> {
-    run_group(g, watch)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn group_avx2(g: &Group, watch: &Watch) -> Result<Vec<Trajectory>> {
-    run_group(g, watch)
 }
 
 /// No force on a cart (a batch in lanes has none).

@@ -17,7 +17,7 @@ use crate::error::{check_finite, Error, Result};
 use crate::integrators::Method;
 use crate::model::Chain;
 use crate::par::*;
-use crate::trig::lanes::{each, sin_cos, Lane, Path, LANES};
+use crate::trig::lanes::{each, on_path, sin_cos, Lane, Path, LANES};
 
 /// One column of an observation ([`Steppers::observe_into`]): entry `i` of a state row, or its
 /// cosine or sine.
@@ -70,28 +70,11 @@ fn observe(states: &[f64], k: usize, columns: &[Column], out: &mut [f64]) {
     }
 }
 
-/// The observation of state rows of `k` values (checked by the caller), on the best path.
-pub(crate) fn observe_on(states: &[f64], k: usize, columns: &[Column], out: &mut [f64]) {
-    match Path::best() {
-        // SAFETY: `best` is an available path.
-        #[cfg(target_arch = "x86_64")]
-        Path::Avx512 => unsafe { observe_avx512(states, k, columns, out) },
-        #[cfg(target_arch = "x86_64")]
-        Path::Avx2 => unsafe { observe_avx2(states, k, columns, out) },
-        _ => observe(states, k, columns, out),
+on_path! {
+    /// The observation of state rows of `k` values (checked by the caller), on `path`.
+    pub(crate) fn observe_on(states: &[f64], k: usize, columns: &[Column], out: &mut [f64]) {
+        observe(states, k, columns, out)
     }
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,fma")]
-unsafe fn observe_avx512(states: &[f64], k: usize, columns: &[Column], out: &mut [f64]) {
-    observe(states, k, columns, out)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn observe_avx2(states: &[f64], k: usize, columns: &[Column], out: &mut [f64]) {
-    observe(states, k, columns, out)
 }
 
 /// Where [`Steppers::act`] writes, each count rows: the state rows and balances (as
@@ -407,7 +390,7 @@ impl Steppers {
         if let Some(c) = columns.iter().find(|c| c.index() >= k) {
             return Err(Error::input(format!("observation column {c:?} is outside a state row of {k} values")));
         }
-        observe_on(states, k, columns, out);
+        observe_on(Path::best(), states, k, columns, out);
         Ok(())
     }
 

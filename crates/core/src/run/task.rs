@@ -6,7 +6,7 @@
 use super::live::Column;
 use crate::error::{Error, Result};
 use crate::model::Chain;
-use crate::trig::lanes::{each, sin_cos, Lane, Path, LANES};
+use crate::trig::lanes::{each, on_path, sin_cos, Lane, Path, LANES};
 
 /// Where an action's component goes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -145,14 +145,7 @@ impl Task {
     /// Each copy's reward and whether its episode ended, from its state row (count x
     /// `state_len`, as the steppers report them).
     pub fn outcome(&self, chain: &Chain, states: &[f64], reward: &mut [f64], terminated: &mut [bool]) {
-        match Path::best() {
-            // SAFETY: `best` is an available path.
-            #[cfg(target_arch = "x86_64")]
-            Path::Avx512 => unsafe { outcome_avx512(self, chain, states, reward, terminated) },
-            #[cfg(target_arch = "x86_64")]
-            Path::Avx2 => unsafe { outcome_avx2(self, chain, states, reward, terminated) },
-            _ => outcome(self, chain, states, reward, terminated),
-        }
+        outcome_on(Path::best(), self, chain, states, reward, terminated)
     }
 }
 
@@ -213,16 +206,10 @@ fn outcome(task: &Task, chain: &Chain, states: &[f64], reward: &mut [f64], termi
     }
 }
 
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,fma")]
-unsafe fn outcome_avx512(task: &Task, chain: &Chain, states: &[f64], reward: &mut [f64], terminated: &mut [bool]) {
-    outcome(task, chain, states, reward, terminated)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn outcome_avx2(task: &Task, chain: &Chain, states: &[f64], reward: &mut [f64], terminated: &mut [bool]) {
-    outcome(task, chain, states, reward, terminated)
+on_path! {
+    fn outcome_on(task: &Task, chain: &Chain, states: &[f64], reward: &mut [f64], terminated: &mut [bool]) {
+        outcome(task, chain, states, reward, terminated)
+    }
 }
 
 #[cfg(test)]

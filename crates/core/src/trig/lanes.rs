@@ -87,6 +87,40 @@ impl Path {
     }
 }
 
+/// `fn NAME(path: Path, ARGS) -> RET { BODY }`: BODY compiled three times, for AVX-512 + FMA,
+/// for AVX2 + FMA (each a `#[target_feature]` function, so that the `#[inline(always)]` kernels
+/// BODY calls are compiled for the path's registers and their `mul_add`s are hardware FMAs) and
+/// for the baseline target, and run on `path`. Panics where the CPU lacks the path's features
+/// (callers choose a path through [`Path::best`] or [`Path::requested`], which never give such a
+/// path). BODY sees only its arguments and the module's items: it is the body of a nested
+/// function, so no generics or `self` of an enclosing item.
+macro_rules! on_path {
+    ($(#[$meta:meta])* $vis:vis fn $name:ident($($arg:ident: $ty:ty),* $(,)?) $(-> $ret:ty)? $body:block) => {
+        $(#[$meta])*
+        #[allow(clippy::too_many_arguments)]
+        $vis fn $name(path: $crate::trig::lanes::Path, $($arg: $ty),*) $(-> $ret)? {
+            #[cfg(target_arch = "x86_64")]
+            #[target_feature(enable = "avx512f,fma")]
+            #[allow(clippy::too_many_arguments)]
+            unsafe fn avx512($($arg: $ty),*) $(-> $ret)? $body
+            #[cfg(target_arch = "x86_64")]
+            #[target_feature(enable = "avx2,fma")]
+            #[allow(clippy::too_many_arguments)]
+            unsafe fn avx2($($arg: $ty),*) $(-> $ret)? $body
+            assert!(path.available(), "the {} kernel needs a CPU feature this one lacks", path.name());
+            match path {
+                // SAFETY: the CPU has the path's features (checked just above).
+                #[cfg(target_arch = "x86_64")]
+                $crate::trig::lanes::Path::Avx512 => unsafe { avx512($($arg),*) },
+                #[cfg(target_arch = "x86_64")]
+                $crate::trig::lanes::Path::Avx2 => unsafe { avx2($($arg),*) },
+                _ => $body,
+            }
+        }
+    };
+}
+pub(crate) use on_path;
+
 // The constants are fdlibm's, digit for digit.
 // Cody–Waite reduction by pi/2 in three parts (fdlibm's __ieee754_rem_pio2, medium case with its
 // second iteration): pi/2 = P1 + P2 + P2T, with P1 and P2 of 33 bits so that `n * P1` and
@@ -201,20 +235,19 @@ pub fn sin_cos<const W: usize>(x: &[f64; W]) -> ([f64; W], [f64; W]) {
 /// where neither path runs (the caller then takes glibc's scalar `sincos`): the portable path's
 /// `mul_add` would be a software FMA there.
 pub(crate) fn sin_cos_slice(x: &[f64], s: &mut [f64], c: &mut [f64]) -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        // SAFETY: each path runs only where the CPU has its features.
-        if Path::Avx512.available() {
-            unsafe { sin_cos_slice_avx512(x, s, c) };
-            return true;
-        }
-        if Path::Avx2.available() {
-            unsafe { sin_cos_slice_avx2(x, s, c) };
-            return true;
+    match Path::best() {
+        Path::Portable => false,
+        path => {
+            sin_cos_slice_on(path, x, s, c);
+            true
         }
     }
-    let _ = (x, s, c);
-    false
+}
+
+on_path! {
+    fn sin_cos_slice_on(x: &[f64], s: &mut [f64], c: &mut [f64]) {
+        sin_cos_chunks(x, s, c)
+    }
 }
 
 /// Whether the CPU has AVX2 and FMA, the features [`sin_cos_pair_within`] is compiled for.
@@ -265,7 +298,6 @@ pub fn sin_cos_pair_within(a: f64, b: f64) -> [(f64, f64); 2] {
     }
 }
 
-#[cfg(target_arch = "x86_64")]
 #[inline(always)]
 fn sin_cos_chunks(x: &[f64], s: &mut [f64], c: &mut [f64]) {
     let n = x.len();
@@ -279,18 +311,6 @@ fn sin_cos_chunks(x: &[f64], s: &mut [f64], c: &mut [f64]) {
         c[i..i + m].copy_from_slice(&lc[..m]);
         i += m;
     }
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,fma")]
-unsafe fn sin_cos_slice_avx512(x: &[f64], s: &mut [f64], c: &mut [f64]) {
-    sin_cos_chunks(x, s, c)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn sin_cos_slice_avx2(x: &[f64], s: &mut [f64], c: &mut [f64]) {
-    sin_cos_chunks(x, s, c)
 }
 
 #[cfg(test)]
