@@ -23,6 +23,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 TARGET = "wasm32-unknown-unknown"
 CRATE = "multipendulum-wasm"
+PROFILE = "wasm"  # Cargo.toml's [profile.wasm]: release, built in parallel
 WASM = ROOT / "python" / "multipendulum" / "web" / "multipendulum.wasm"
 
 
@@ -49,7 +50,7 @@ def _ensure_target() -> None:
 
 
 def build_wasm() -> Path:
-    """Build the viewer's engine in release mode and copy it to ``web/multipendulum.wasm``."""
+    """Build the viewer's engine (Cargo profile ``PROFILE``) and copy it to ``web/multipendulum.wasm``."""
     if not (ROOT / "crates" / "wasm" / "Cargo.toml").is_file():  # an sdist: use the file it carries
         if WASM.is_file():
             print(f"multipendulum: using the prebuilt {WASM.name} of this source distribution", file=sys.stderr)
@@ -60,7 +61,7 @@ def build_wasm() -> Path:
         raise _fail("cargo is not on PATH: install Rust (https://rustup.rs) to build the viewer's WebAssembly")
     _ensure_target()
     # cargo reports where it wrote the artifact (CARGO_TARGET_DIR or not); its messages go to stderr.
-    command = [cargo, "build", "--release", "-p", CRATE, "--target", TARGET,
+    command = [cargo, "build", "--profile", PROFILE, "-p", CRATE, "--target", TARGET,
                "--message-format=json-render-diagnostics"]
     print("multipendulum: " + " ".join(command[1:-1]), file=sys.stderr, flush=True)
     run = subprocess.run(command, cwd=ROOT, stdout=subprocess.PIPE, text=True)

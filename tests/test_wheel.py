@@ -7,6 +7,7 @@ The build reuses cargo's target directory, so after `make build` it only re-pack
 the fresh environment's dependencies come from pip's cache when it has them.
 """
 import http.client
+import importlib.util
 import ipaddress
 import json
 import os
@@ -24,6 +25,10 @@ ROOT = Path(__file__).resolve().parents[1]
 WEB = "multipendulum/web/"
 WASM = WEB + "multipendulum.wasm"
 PAGE_FILES = ["index.html", "engine.js", "viewer.js", "scenario.js", "style.css", "multipendulum.wasm"]
+# The backend's facts (the WebAssembly's target, crate and Cargo profile), from the backend itself.
+_SPEC = importlib.util.spec_from_file_location("multipendulum_build", ROOT / "build_backend" / "multipendulum_build.py")
+BACKEND = importlib.util.module_from_spec(_SPEC)
+_SPEC.loader.exec_module(BACKEND)
 TEST_ONLY = ["pytest", "hypothesis", "sympy", "scipy", "dask", "distributed", "zarr"]
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="checks listening sockets in /proc/net")
@@ -75,7 +80,7 @@ def test_the_wheel_holds_the_viewer_and_its_freshly_built_webassembly(wheel):
     assert wasm.startswith(b"\0asm"), wasm[:8]
     # It is the build's own output, copied by the backend, not an old file left beside the page.
     target = Path(os.environ.get("CARGO_TARGET_DIR", ROOT / "target"))
-    built = target / "wasm32-unknown-unknown" / "release" / "multipendulum_wasm.wasm"
+    built = target / BACKEND.TARGET / BACKEND.PROFILE / (BACKEND.CRATE.replace("-", "_") + ".wasm")
     assert wasm == built.read_bytes()
     assert any(n.startswith("multipendulum/_core") for n in names), names
     assert not any("build_backend" in n or "multipendulum_build" in n for n in names), names
