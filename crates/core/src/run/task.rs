@@ -112,21 +112,29 @@ impl Task {
     /// Actions (count x [`Task::width`], row-major) as joint torques (count x N) and cart
     /// forces (count; empty without a cart). Continuous actions out of `[-1, 1]` are clipped
     /// (gymnasium's Pendulum), not finite ones refused; discrete ones must be 0, 1 or 2. A
-    /// refused action names its index, `(copy, component)` when `batched`, else `(component,)`.
+    /// refused action names its index in the actions' array: `(copy, component)` when `batched`,
+    /// else `(component,)`; a discrete task of one component takes one number per copy
+    /// (gymnasium's `Discrete(3)`), so there `(copy,)`, and a single action has no index.
     pub fn inputs(&self, chain: &Chain, actions: &[f64], batched: bool, torques: &mut [f64], forces: &mut [f64]) -> Result<()> {
         let (k, n) = (self.width(), chain.n());
         let count = actions.len() / k;
         if actions.len() != count * k || torques.len() != count * n || forces.len() != if chain.cart().is_some() { count } else { 0 } {
             return Err(Error::input(format!("{} action values do not make whole actions of {k} for {} copies", actions.len(), torques.len() / n.max(1))));
         }
-        let at = |i: usize| if batched { format!("({}, {})", i / k, i % k) } else { format!("({},)", i % k) };
+        let scalar = self.discrete && k == 1;
+        let at = |i: usize| match (batched, scalar) {
+            (true, false) => format!(" at index ({}, {})", i / k, i % k),
+            (true, true) => format!(" at index ({i},)"),
+            (false, false) => format!(" at index ({},)", i % k),
+            (false, true) => String::new(),
+        };
         for (i, &a) in actions.iter().enumerate() {
             if self.discrete {
                 if !(a == 0.0 || a == 1.0 || a == 2.0) {
-                    return Err(Error::input(format!("a discrete action must be 0, 1 or 2, got {} at index {}", number(a), at(i))));
+                    return Err(Error::input(format!("a discrete action must be 0, 1 or 2, got {}{}", number(a), at(i))));
                 }
             } else if !a.is_finite() {
-                return Err(Error::input(format!("action must be finite, got {} at index {}", number(a), at(i))));
+                return Err(Error::input(format!("action must be finite, got {}{}", number(a), at(i))));
             }
         }
         torques.fill(0.0);
@@ -282,6 +290,10 @@ mod tests {
             message(discrete.inputs(&chain, &[3.0, 1.0], false, &mut torques[..2], &mut forces)),
             "a discrete action must be 0, 1 or 2, got 3 at index (0,)"
         );
+        // One discrete component: one number per copy (gymnasium's Discrete), so one index or none.
+        let single = Task::new(&chain, true, vec![Target::Joint(1)], vec![1.0], observe_all(2), Goal::Height { above: 0.85 }).unwrap();
+        assert_eq!(message(single.inputs(&chain, &[0.0, -1.0], true, &mut torques, &mut forces)), "a discrete action must be 0, 1 or 2, got -1 at index (1,)");
+        assert_eq!(message(single.inputs(&chain, &[f64::NAN], false, &mut torques[..2], &mut forces)), "a discrete action must be 0, 1 or 2, got nan");
         // Nothing was written by a refused call.
         assert_eq!(torques, [0.0; 4]);
     }
