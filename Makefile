@@ -46,8 +46,10 @@ browser: $(PY)
 	@$(PY) -c "import playwright" 2>/dev/null || $(PY) -m pip install -q playwright \
 	  || echo "note: could not install playwright; the browser tests will be skipped"
 
+# Cargo.toml's `tests` profile (unoptimised, with overflow checks). Unoptimised, one flip-kernel
+# test's frames pass the 2 MiB of a test thread, so threads get 8 MiB (a main thread's usual).
 test-rust: lint
-	cargo test --release -p multipendulum-core -p multipendulum-wasm -q
+	RUST_MIN_STACK=8388608 cargo test --profile tests -p multipendulum-core -p multipendulum-wasm -q
 
 # The Rust crates' form, checked before their tests (seconds): rustfmt's layout (rustfmt.toml),
 # clippy on every target with its warnings as errors, and the developer documentation (private
