@@ -426,6 +426,34 @@ def _outcome_by_hand(task, states):
     return np.mean((1 - np.cos(theta)) / 2, axis=1), off_track
 
 
+def test_action_spaces_are_the_actions_the_core_takes():
+    """Each environment's action space is what its core task takes: one discrete component is
+    gymnasium's Discrete(3) (one number a step), more a MultiDiscrete, continuous ones a Box of the
+    clipping range; every sample of a space steps, the first value past it is refused."""
+    from gymnasium import spaces
+
+    one = gym.make(IDS[0], action_type="discrete").unwrapped
+    many = gym.make(IDS[0], n=3, actuated=[0, 2], action_type="discrete").unwrapped
+    box = gym.make(IDS[0], n=3, actuated="all").unwrapped
+    cart = gym.make(IDS[1], n=2).unwrapped
+    assert one.action_space == spaces.Discrete(3)
+    assert many.action_space == spaces.MultiDiscrete([3, 3])
+    assert box.action_space == spaces.Box(-1.0, 1.0, (3,), dtype=np.float64)
+    assert cart.action_space == spaces.Box(-1.0, 1.0, (1,), dtype=np.float64)
+    for env in (one, many, box, cart):
+        env.reset(seed=0)
+        env.action_space.seed(0)
+        for _ in range(5):
+            env.step(env.action_space.sample())
+    with pytest.raises(mp.InputError, match=r"^a discrete action must be 0, 1 or 2, got 3$"):
+        one.step(one.action_space.n)
+    with pytest.raises(mp.InputError, match=r"^a discrete action must be 0, 1 or 2, got 3 at index \(1,\)$"):
+        many.step(many.action_space.nvec - [1, 0])
+    v = gym.make_vec(IDS[0], num_envs=4, action_type="discrete")
+    assert v.single_action_space == spaces.Discrete(3) and v.action_space == spaces.MultiDiscrete([3] * 4)
+    v.close()
+
+
 @pytest.mark.parametrize("env_id,kwargs", [
     (IDS[0], {"max_torque": 6.0, "goal": 0.2}),
     (IDS[0], {"n": 3, "actuated": [0, 2], "action_type": "discrete", "max_torque": 8.0, "goal": 0.2}),

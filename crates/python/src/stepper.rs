@@ -4,6 +4,7 @@
 use multipendulum_core as core;
 use numpy::{PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadwriteArray1};
 use pyo3::prelude::*;
+use pyo3::types::PyTuple;
 
 use core::{Form, Method, Settings};
 
@@ -78,6 +79,25 @@ impl PyTask {
     #[getter]
     fn width(&self) -> usize {
         self.inner.width()
+    }
+
+    /// One action's shape: `()` for a discrete task of one component (gymnasium's
+    /// `Discrete`), else `(width,)`.
+    #[getter]
+    fn action_shape<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyTuple>> {
+        PyTuple::new(py, self.inner.action_shape())
+    }
+
+    /// The number of values a discrete action takes (`0..levels`), or None for continuous actions.
+    #[getter]
+    fn action_levels(&self) -> Option<usize> {
+        self.inner.discrete.then_some(core::Task::LEVELS)
+    }
+
+    /// `(low, high)`: the range of a continuous action's components (beyond it, clipped).
+    #[getter]
+    fn action_bounds(&self) -> (f64, f64) {
+        core::Task::BOUNDS
     }
 }
 

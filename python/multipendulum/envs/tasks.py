@@ -39,6 +39,16 @@ def _numbers(action: object, what: str) -> np.ndarray:
     return a
 
 
+def action_space(core: _core.Task) -> spaces.Space[Any]:
+    """One copy's action space, of the shape and values the core's task takes: ``Discrete`` for
+    one discrete component, ``MultiDiscrete`` for more, else a ``Box`` of the clipping range."""
+    shape, levels = tuple(core.action_shape), core.action_levels
+    if levels is not None:
+        return spaces.Discrete(levels) if shape == () else spaces.MultiDiscrete([levels] * shape[0])
+    low, high = core.action_bounds
+    return spaces.Box(low, high, shape, dtype=np.float64)
+
+
 class Task:
     """The common part: a chain, its stepping, and the batched action check."""
 
@@ -157,10 +167,6 @@ class Acrobot(Task):
         if action_type not in ("continuous", "discrete"):
             raise InputError(f"action_type must be 'continuous' or 'discrete', got {action_type!r}")
         self.discrete = action_type == "discrete"
-        if self.discrete:
-            self.single_action_space = spaces.Discrete(3) if k == 1 else spaces.MultiDiscrete([3] * k)
-        else:
-            self.single_action_space = spaces.Box(-1.0, 1.0, (k,), dtype=np.float64)
         self.goal = as_fraction(goal)
         self.low, self.high = float(low), float(high)
         self.reach = float(np.sum(self.chain.lengths))
@@ -171,6 +177,7 @@ class Acrobot(Task):
         self.columns = _columns([(COS, i) for i in a], [(SIN, i) for i in a], [(VALUE, n_ + i) for i in a])
         self.core = _core.Task(self.chain._c, discrete=self.discrete, targets=list(self.joints), scale=self.scale.tolist(),
                                columns=self.columns, goal="height", above=self.goal * self.reach)
+        self.single_action_space = action_space(self.core)
 
     def initial(self, rng: np.random.Generator, low: float, high: float) -> Array:
         return rng.uniform(low=low, high=high, size=(2 * self.n,))
@@ -219,7 +226,6 @@ class CartPole(Task):
         self.dt, self.substeps, self.method = stepping(dt, substeps, method, self.n, upright=task == "balance")
         self.max_force = positive(max_force, "max_force")
         self.scale = np.array([self.max_force])
-        self.single_action_space = spaces.Box(-1.0, 1.0, (1,), dtype=np.float64)
         self.x_limit = positive(x_limit, "x_limit")
         self.angle_limit = positive(angle_limit, "angle_limit")
         self.low, self.high = float(low), float(high)
@@ -232,6 +238,7 @@ class CartPole(Task):
         limits = {"x_limit": self.x_limit} if task == "swingup" else {"x_limit": self.x_limit, "angle_limit": self.angle_limit}
         self.core = _core.Task(self.chain._c, discrete=False, targets=[None], scale=[self.max_force], columns=self.columns,
                                goal="balance" if task == "balance" else "swingup", **limits)
+        self.single_action_space = action_space(self.core)
 
     def initial(self, rng: np.random.Generator, low: float, high: float) -> Array:
         n = self.n

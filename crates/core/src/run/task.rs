@@ -57,6 +57,12 @@ fn number(x: f64) -> String {
 }
 
 impl Task {
+    /// The values a discrete action takes, `0..LEVELS` (the inputs `-scale`, 0, `+scale`).
+    pub const LEVELS: usize = 3;
+
+    /// The range of a continuous action's components; beyond it they are clipped.
+    pub const BOUNDS: (f64, f64) = (-1.0, 1.0);
+
     /// A task for copies of `chain`, checked against it.
     pub fn new(chain: &Chain, discrete: bool, targets: Vec<Target>, scale: Vec<f64>, columns: Vec<Column>, goal: Goal) -> Result<Task> {
         if targets.is_empty() || targets.len() != scale.len() {
@@ -109,6 +115,17 @@ impl Task {
         self.targets.len()
     }
 
+    /// One action's shape as gymnasium's spaces see it: `[]` for a discrete task of one
+    /// component (one number per copy, gymnasium's `Discrete(3)`), else `[width]`
+    /// (`MultiDiscrete` or a `Box`).
+    pub fn action_shape(&self) -> Vec<usize> {
+        if self.discrete && self.width() == 1 {
+            Vec::new()
+        } else {
+            vec![self.width()]
+        }
+    }
+
     /// Actions (count x [`Task::width`], row-major) as joint torques (count x N) and cart
     /// forces (count; empty without a cart). Continuous actions out of `[-1, 1]` are clipped
     /// (gymnasium's Pendulum), not finite ones refused; discrete ones must be 0, 1 or 2. A
@@ -121,7 +138,7 @@ impl Task {
         if actions.len() != count * k || torques.len() != count * n || forces.len() != if chain.cart().is_some() { count } else { 0 } {
             return Err(Error::input(format!("{} action values do not make whole actions of {k} for {} copies", actions.len(), torques.len() / n.max(1))));
         }
-        let scalar = self.discrete && k == 1;
+        let scalar = self.action_shape().is_empty();
         let at = |i: usize| match (batched, scalar) {
             (true, false) => format!(" at index ({}, {})", i / k, i % k),
             (true, true) => format!(" at index ({i},)"),
@@ -130,7 +147,7 @@ impl Task {
         };
         for (i, &a) in actions.iter().enumerate() {
             if self.discrete {
-                if !(a == 0.0 || a == 1.0 || a == 2.0) {
+                if !(a.fract() == 0.0 && (0.0..Self::LEVELS as f64).contains(&a)) {
                     return Err(Error::input(format!("a discrete action must be 0, 1 or 2, got {}{}", number(a), at(i))));
                 }
             } else if !a.is_finite() {
@@ -140,7 +157,7 @@ impl Task {
         torques.fill(0.0);
         for (c, action) in actions.chunks(k).enumerate() {
             for ((&a, &s), t) in action.iter().zip(&self.scale).zip(&self.targets) {
-                let level = if self.discrete { a - 1.0 } else { a.clamp(-1.0, 1.0) };
+                let level = if self.discrete { a - 1.0 } else { a.clamp(Self::BOUNDS.0, Self::BOUNDS.1) };
                 match *t {
                     Target::Joint(j) => torques[c * n + j] = level * s,
                     Target::Cart => forces[c] = level * s,
@@ -292,6 +309,13 @@ mod tests {
         );
         // One discrete component: one number per copy (gymnasium's Discrete), so one index or none.
         let single = Task::new(&chain, true, vec![Target::Joint(1)], vec![1.0], observe_all(2), Goal::Height { above: 0.85 }).unwrap();
+        assert_eq!((single.action_shape(), discrete.action_shape(), task.action_shape()), (vec![], vec![2], vec![2]));
+        for (bad, shown) in [(f64::INFINITY, "inf"), (0.5, "0.5"), (2.000000001, "2.000000001")] {
+            assert_eq!(
+                message(single.inputs(&chain, &[bad], false, &mut torques[..2], &mut forces)),
+                format!("a discrete action must be 0, 1 or 2, got {shown}")
+            );
+        }
         assert_eq!(message(single.inputs(&chain, &[0.0, -1.0], true, &mut torques, &mut forces)), "a discrete action must be 0, 1 or 2, got -1 at index (1,)");
         assert_eq!(message(single.inputs(&chain, &[f64::NAN], false, &mut torques[..2], &mut forces)), "a discrete action must be 0, 1 or 2, got nan");
         // Nothing was written by a refused call.
