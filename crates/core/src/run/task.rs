@@ -119,11 +119,16 @@ impl Task {
     /// component (one number per copy, gymnasium's `Discrete(3)`), else `[width]`
     /// (`MultiDiscrete` or a `Box`).
     pub fn action_shape(&self) -> Vec<usize> {
-        if self.discrete && self.width() == 1 {
+        if self.one_number() {
             Vec::new()
         } else {
             vec![self.width()]
         }
+    }
+
+    /// Whether one action is one number (a discrete task of one component), not an array.
+    fn one_number(&self) -> bool {
+        self.discrete && self.width() == 1
     }
 
     /// Actions (count x [`Task::width`], row-major) as joint torques (count x N) and cart
@@ -138,7 +143,7 @@ impl Task {
         if actions.len() != count * k || torques.len() != count * n || forces.len() != if chain.cart().is_some() { count } else { 0 } {
             return Err(Error::input(format!("{} action values do not make whole actions of {k} for {} copies", actions.len(), torques.len() / n.max(1))));
         }
-        let scalar = self.action_shape().is_empty();
+        let scalar = self.one_number();
         let at = |i: usize| match (batched, scalar) {
             (true, false) => format!(" at index ({}, {})", i / k, i % k),
             (true, true) => format!(" at index ({i},)"),
