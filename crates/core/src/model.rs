@@ -23,6 +23,9 @@ pub struct Chain {
     pub(crate) h: Vec<f64>,
     /// `A_ii = I_i + m_i c_i^2 + l_i^2 sum_{k>i} m_k`.
     pub(crate) diag: Vec<f64>,
+    /// `1 / A_{N-1,N-1}`, the bottom link's pivot inverted: the lanes' recursion starts from it
+    /// on every evaluation, where a division of its own would stall the start of each one.
+    pub(crate) bottom_inv: f64,
     /// Losses at the joints: viscous damping and regularised Coulomb friction
     /// ([`Chain::add_losses`]); all zero for the seeds' ideal chain.
     pub(crate) joints: Joints,
@@ -127,7 +130,8 @@ impl Chain {
         // input, rather than at t = 0 as a failed integration.
         let joints =
             Joints { damping: vec![0.0; n], friction: vec![0.0; n], friction_velocity: FRICTION_VELOCITY, any: false, inv_velocity: 1.0 / FRICTION_VELOCITY };
-        let chain = Chain { lengths: lengths.to_vec(), masses: masses.to_vec(), com, inertia, g, h, diag, joints, cart: None };
+        let bottom_inv = 1.0 / diag[n - 1];
+        let chain = Chain { lengths: lengths.to_vec(), masses: masses.to_vec(), com, inertia, g, h, diag, bottom_inv, joints, cart: None };
         chain.check_nonsingular()?;
         // (A chain that passes the structural check has every diagonal entry > 0 in exact
         // arithmetic: a zero here is an underflow.)

@@ -37,7 +37,7 @@ use crate::run::events::{Condition, EventSpec, Tracker};
 use crate::run::lanes::{lane_of, raw_row, LaneControl};
 use crate::run::simulate::Books;
 use crate::run::Settings;
-use crate::trig::lanes::{on_path, Lane, Path, LANES};
+use crate::trig::lanes::{copy_lanes, on_path, Lane, Path, LANES};
 use crate::watch::Watch;
 
 /// Rows per parallel task.
@@ -259,7 +259,7 @@ fn rk4_rows(rows: &mut Rows, t_end: f64, dt: f64, watch: &Watch) -> Result<()> {
             watch.check(k as f64 * dt)?;
             let t = k as f64 * dt;
             let h = if k + 1 == steps { t_end - t } else { dt };
-            y0.copy_from_slice(&y);
+            copy_lanes(&mut y0, &y);
             let mut sys = ChainLanes { chain, tau: &tau, drive: rows.drive, force: &[0.0; LANES], pivot, pivot_work: pivot.is_some(), q: &mut q };
             let stepped = rk.step_system(&mut y, t, h, &active, &mut sys);
             let nonfinite = stepped.map_err(|(stage, bad)| {

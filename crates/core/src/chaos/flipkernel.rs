@@ -34,7 +34,7 @@ use crate::error::{Error, Result};
 use crate::integrators::lanes::{failed_at, step_system_pair, ChainLanes as Equations, Rk4Lanes, Stepped};
 use crate::model::Chain;
 use crate::par::*;
-use crate::trig::lanes::{each, on_path, sin_cos, Lane, Path, LANES};
+use crate::trig::lanes::{copy_lanes, each, on_path, sin_cos, Lane, Path, LANES};
 use crate::watch::Watch;
 
 /// Trajectories per parallel task (each task refills its lanes from its own chunk).
@@ -441,7 +441,7 @@ fn run_chunk_chain(
         stop.check(g[0].step[0].max(g[1].step[0]) as f64 * dt)?;
         let [a, b] = &mut g;
         for s in [&mut *a, &mut *b] {
-            s.y0.copy_from_slice(&s.y);
+            copy_lanes(&mut s.y0, &s.y);
         }
         // Each lane at its own trajectory's time (for a drive).
         let (ta, tb) = (each(|i| a.step[i] as f64 * dt), each(|i| b.step[i] as f64 * dt));

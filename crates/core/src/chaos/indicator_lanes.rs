@@ -19,7 +19,7 @@ use crate::error::Result;
 use crate::integrators::lanes::{LaneSystem, Rk4Lanes};
 use crate::model::Chain;
 use crate::par::*;
-use crate::trig::lanes::{each, on_path, Lane, Path, LANES};
+use crate::trig::lanes::{copy_lanes, each, on_path, Lane, Path, LANES};
 use crate::watch::Watch;
 
 /// Rows per parallel task: eight groups.
@@ -200,7 +200,7 @@ impl LaneSystem for TangentLanes<'_> {
         let (chain, n, k) = (self.chain, self.chain.n(), self.k);
         let d = 2 * n;
         let (head, tail) = dst.split_at_mut(d);
-        head[..n].copy_from_slice(&src[n..d]);
+        copy_lanes(&mut head[..n], &src[n..d]);
         let lossy = chain.lossy_joints();
         let acc = self.pivot.map(|p| p.acc_lanes(at));
         let forces: &[Lane] = if lossy || self.drive.is_some() || acc.is_some() {
@@ -223,7 +223,7 @@ impl LaneSystem for TangentLanes<'_> {
         for j in 0..k {
             let v = &src[d * (j + 1)..d * (j + 2)];
             let dv = &mut tail[d * j..d * (j + 1)];
-            dv[..n].copy_from_slice(&v[n..]);
+            copy_lanes(&mut dv[..n], &v[n..]);
             let extra = if lossy || acc.is_some() {
                 if lossy {
                     add_loss_tangent(chain, &src[n..d], &v[n..], self.dq);

@@ -236,7 +236,7 @@ fn recursion(
     // The bottom link first, pending: nothing is below it, so its pivot is its own d, which
     // passes the test.
     let b = n - 1;
-    let inv_b = 1.0 / d[b];
+    let inv_b = chain.bottom_inv;
     let (mut pux, mut puy, mut pinv, mut prho) = ([0.0; LANES], [0.0; LANES], [inv_b; LANES], out[b]);
     {
         let hb = h[b];

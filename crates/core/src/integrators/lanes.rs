@@ -10,7 +10,7 @@ use crate::dynamics::base::Pivot;
 use crate::dynamics::lanes::{accelerations, accelerations_on, add_losses, add_pivot_forces_from, CartLanes, LaneScratch, LaneSingular};
 use crate::dynamics::torque::Timed;
 use crate::model::Chain;
-use crate::trig::lanes::{each, Lane, LANES};
+use crate::trig::lanes::{copy_lanes, each, Lane, LANES};
 
 /// A system of lanes built on a chain's accelerations. A trait rather than a closure: its
 /// `#[inline(always)]` method is compiled inside the caller's `#[target_feature]` wrapper, where
@@ -54,7 +54,7 @@ impl LaneSystem for ChainLanes<'_> {
         let (theta, omega) = (&y[..n], &y[n..2 * n]);
         let (cart, lossy) = (chain.cart(), chain.lossy_joints());
         let (head, tail) = dy.split_at_mut(n);
-        head.copy_from_slice(omega);
+        copy_lanes(head, omega);
         if self.drive.is_none() && !lossy && cart.is_none() && self.pivot.is_none() {
             return accelerations(chain, theta, omega, self.tau, tail, scratch, active);
         }
@@ -70,7 +70,7 @@ impl LaneSystem for ChainLanes<'_> {
                 }
                 drive_power = Some(p);
             }
-            None => self.q.copy_from_slice(self.tau),
+            None => copy_lanes(self.q, self.tau),
         }
         let mut pivot_power = None;
         if let Some(pivot) = self.pivot {
@@ -203,12 +203,12 @@ impl Rk4Lanes {
     /// [`Rk4Lanes::step_system`] from a time of each lane's own.
     #[inline(always)]
     pub fn step_system_at(&mut self, y: &mut [Lane], t: &Lane, dt: f64, active: &Lane, sys: &mut impl LaneSystem) -> Stepped {
-        // A system of four lanes (the double pendulum, a pendulum on a cart) keeps its state,
-        // stages and sums in fixed-size arrays, which LLVM holds in registers across the step
-        // where it cannot do so for the heap buffers: the same operations, so the same bits.
+        // A system of four or six lanes (the double and triple pendulums, a pendulum on a cart)
+        // takes loops of a compile-time length, which LLVM unrolls and keeps in registers: the
+        // same operations, so the same bits.
         match y.len() {
-            4 => return fixed::<4, 1, _>([y], [t], dt, [active], [sys], [&mut self.scratch])[0],
-            6 => return fixed::<6, 1, _>([y], [t], dt, [active], [sys], [&mut self.scratch])[0],
+            4 => return fixed::<4, 1, _>([y], [t], dt, [active], [sys], [self])[0],
+            6 => return fixed::<6, 1, _>([y], [t], dt, [active], [sys], [self])[0],
             _ => {}
         }
         let half = 0.5 * dt;
@@ -302,16 +302,17 @@ pub fn step_system_pair<S: LaneSystem>(
 ) -> [Stepped; 2] {
     let ([a, b], [ya, yb], [sa, sb]) = (rk, y, sys);
     match ya.len() {
-        4 => fixed::<4, 2, _>([ya, yb], t, dt, active, [sa, sb], [&mut a.scratch, &mut b.scratch]),
-        6 => fixed::<6, 2, _>([ya, yb], t, dt, active, [sa, sb], [&mut a.scratch, &mut b.scratch]),
+        4 => fixed::<4, 2, _>([ya, yb], t, dt, active, [sa, sb], [a, b]),
+        6 => fixed::<6, 2, _>([ya, yb], t, dt, active, [sa, sb], [a, b]),
         _ => [a.step_system_at(ya, t[0], dt, active[0], sa), b.step_system_at(yb, t[1], dt, active[1], sb)],
     }
 }
 
-/// [`Rk4Lanes::step_system_at`] of `P` groups of a system of `M` lanes, side by side, their
-/// buffers fixed-size arrays on the stack (which LLVM holds in registers where it cannot do so
-/// for the heap buffers): for each group, operation for operation the same step as alone. A
-/// group whose rates fail at a stage stops there (its state unchanged); the others go on.
+/// [`Rk4Lanes::step_system_at`] of `P` groups of a system of `M` lanes, side by side, in each
+/// group's own buffers (its stages and stage state; nothing zeroed or copied per step) with
+/// loops of the compile-time length `M`: for each group, operation for operation the same step
+/// as alone. A group whose rates fail at a stage stops there (its state unchanged); the others
+/// go on.
 #[inline(always)]
 fn fixed<const M: usize, const P: usize, S: LaneSystem>(
     y: [&mut [Lane]; P],
@@ -319,12 +320,17 @@ fn fixed<const M: usize, const P: usize, S: LaneSystem>(
     dt: f64,
     active: [&Lane; P],
     sys: [&mut S; P],
-    scratch: [&mut LaneScratch; P],
+    rk: [&mut Rk4Lanes; P],
 ) -> [Stepped; P] {
     let half = 0.5 * dt;
-    let y0: [[Lane; M]; P] = std::array::from_fn(|p| std::array::from_fn(|m| y[p][m]));
-    let mut k = [[[[0.0; LANES]; M]; 4]; P];
-    let mut tmp = y0;
+    let y: [&mut [Lane; M]; P] = y.map(|y| (&mut y[..M]).try_into().expect("M lanes of state"));
+    let mut bufs = rk.map(|r| {
+        let Rk4Lanes { k, tmp, scratch, .. } = r;
+        let [k1, k2, k3, k4] = k;
+        let k: [&mut [Lane; M]; 4] = [k1, k2, k3, k4].map(|k| (&mut k[..M]).try_into().expect("M lanes of stage"));
+        let tmp: &mut [Lane; M] = (&mut tmp[..M]).try_into().expect("M lanes of stage state");
+        (k, tmp, scratch)
+    });
     let mut failed: [Option<(usize, LaneSingular)>; P] = [None; P];
     for stage in 0..4 {
         for p in 0..P {
@@ -336,16 +342,20 @@ fn fixed<const M: usize, const P: usize, S: LaneSystem>(
                 3 => t[p][i] + dt,
                 _ => t[p][i] + half,
             });
-            if let Err(s) = sys[p].rates(&at, &tmp[p], &mut k[p][stage], scratch[p], active[p]) {
-                failed[p] = Some((stage, s.seen_in(&tmp[p])));
+            let (k, tmp, scratch) = &mut bufs[p];
+            let src: &[Lane; M] = if stage == 0 { y[p] } else { tmp };
+            if let Err(s) = sys[p].rates(&at, src, &mut k[stage][..], scratch, active[p]) {
+                failed[p] = Some((stage, s.seen_in(src)));
             }
         }
         if stage < 3 {
             let h = if stage < 2 { half } else { dt };
             for p in 0..P {
+                let (k, tmp, _) = &mut bufs[p];
+                let (ks, y0) = (&*k[stage], &*y[p]);
                 for m in 0..M {
                     for i in 0..LANES {
-                        tmp[p][m][i] = h.mul_add(k[p][stage][m][i], y0[p][m][i]);
+                        tmp[m][i] = h.mul_add(ks[m][i], y0[m][i]);
                     }
                 }
             }
@@ -361,11 +371,12 @@ fn fixed<const M: usize, const P: usize, S: LaneSystem>(
             continue;
         }
         let mut poison = [0.0; LANES];
-        let [k1, k2, k3, k4] = &k[p];
-        let tmp = &mut tmp[p];
+        let (k, tmp, _) = &mut bufs[p];
+        let [k1, k2, k3, k4] = k;
+        let y0 = &mut *y[p];
         for m in 0..M {
             for i in 0..LANES {
-                tmp[m][i] = sixth.mul_add(2.0f64.mul_add(k2[m][i] + k3[m][i], k1[m][i]) + k4[m][i], y0[p][m][i]);
+                tmp[m][i] = sixth.mul_add(2.0f64.mul_add(k2[m][i] + k3[m][i], k1[m][i]) + k4[m][i], y0[m][i]);
                 poison[i] += tmp[m][i] * 0.0;
             }
         }
@@ -375,7 +386,7 @@ fn fixed<const M: usize, const P: usize, S: LaneSystem>(
             keep[i] = active[p][i] > 0.0 && finite;
             nonfinite[i] = active[p][i] > 0.0 && !finite;
         }
-        for (yv, t) in y[p].iter_mut().zip(tmp.iter()) {
+        for (yv, t) in y0.iter_mut().zip(tmp.iter()) {
             for i in 0..LANES {
                 yv[i] = if keep[i] { t[i] } else { yv[i] };
             }

@@ -30,7 +30,7 @@ use crate::integrators::{Controller, Decision};
 use crate::interp::hermite;
 use crate::model::Chain;
 use crate::par::*;
-use crate::trig::lanes::{on_path, Lane, Path, LANES};
+use crate::trig::lanes::{copy_lanes, on_path, Lane, Path, LANES};
 use crate::watch::Watch;
 
 /// Whether a batch with `settings` and the torque `drive` (`None`: one the lanes cannot
@@ -227,7 +227,7 @@ fn run_group(g: &Group, watch: &Watch) -> Result<Vec<Trajectory>> {
                 next += 1;
             }
         }
-        y0.copy_from_slice(&y);
+        copy_lanes(&mut y0, &y);
         let nonfinite = rk.step_system(&mut y, t, h, &active, &mut equations(g, &zero, &mut q)).map_err(|(stage, bad)| {
             let j = (0..LANES).find(|&j| bad.lanes[j]).unwrap_or(0);
             error(j, failed_at(&bad, j, stage, t, h), &bad.reason(j))
