@@ -44,6 +44,7 @@ def test_rods_with_mismatched_sizes():
 @pytest.mark.parametrize("theta0, omega0, message", [
     ([0.1, np.nan], [0, 0], "theta0[1] must be finite, got nan"),
     ([0.1, 0.2], [np.inf, 0], "omega0[0] must be finite, got inf"),
+    ([0.1, -1e300], [0, 0], "theta0[1] must be within +-1e+15 rad, got -1e+300"),
     ([0.1, 0.2, 0.3], [0, 0, 0], "theta0 must have shape (2,) or (..., 2) (one entry per link), got shape (3,)"),
     ([0.1, 0.2], [0, 0, 0], "omega0 must have shape (2,) or (..., 2) (one entry per link), got shape (3,)"),
     ([[0.1, 0.2]], [0, 0], "theta0 and omega0 must have the same shape, got (1, 2) and (2,)"),
@@ -59,6 +60,8 @@ def test_bad_initial_states(theta0, omega0, message):
     (dict(t_end=0.0), "t_end must be > 0 and finite, got 0"),
     (dict(t_end=-1.0), "t_end must be > 0 and finite, got -1"),
     (dict(t_end=np.nan), "t_end must be > 0 and finite, got NaN"),
+    (dict(t_end=-1e300), "t_end must be > 0 and finite, got -1e+300"),
+    (dict(method="rk4", dt=-1e-300), "dt must be > 0 and finite, got -1e-300"),
     (dict(method="rk4", dt=0.0), "dt must be > 0 and finite, got 0"),
     (dict(method="rk4", dt=-0.1), "dt must be > 0 and finite, got -0.1"),
     (dict(method="rk4"), "method rk4 takes a fixed step: give dt"),

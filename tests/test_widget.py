@@ -125,7 +125,7 @@ BAD_VALUES = [
     ("method", "rk5", 'method must be one of rk4, dop853, gauss4, gauss6, got "rk5"'),
     ("method", "rk4", "method rk4 takes a fixed step: give dt"),
     ("dt", -0.01, "dt must be > 0 and finite, got -0.01"),
-    ("rtol", 1e-20, "rtol must be >= 1e-15 and finite, got 0.00000000000000000001"),
+    ("rtol", 1e-20, "rtol must be >= 1e-15 and finite, got 1e-20"),
     ("cart_x0", 1.0, "cart_x0, cart_v0 and cart_force need a chain with a cart (mp.Chain(..., cart=mp.Cart(mass)))"),
     ("speed", 0.0, "speed must be > 0 and finite (simulated seconds per second), got 0"),
     ("speed", float("inf"), "speed must be > 0 and finite (simulated seconds per second), got inf"),

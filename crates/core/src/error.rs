@@ -48,12 +48,32 @@ impl fmt::Display for Error {
 
 impl std::error::Error for Error {}
 
+/// A number as a message shows it: as Rust writes it (`0.25`, `3`, `NaN`, `inf`), but in
+/// exponent form, as Python's `repr` (`1e+300`, `-2.5e-07`), from 1e16 up and under 1e-4, where
+/// Rust writes every digit (a refused `1e300` as 301 of them).
+pub struct Shown(pub f64);
+
+impl fmt::Display for Shown {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let x = self.0;
+        let a = x.abs();
+        if !x.is_finite() || a == 0.0 || (1e-4..1e16).contains(&a) {
+            return write!(f, "{x}");
+        }
+        // Rust's shortest round-trip digits, its exponent signed and of two digits at least.
+        let e = format!("{x:e}");
+        let (mantissa, exponent) = e.split_once('e').expect("{:e} writes an exponent");
+        let exponent: i32 = exponent.parse().expect("{:e} writes an integer exponent");
+        write!(f, "{mantissa}e{}{:02}", if exponent < 0 { '-' } else { '+' }, exponent.abs())
+    }
+}
+
 pub type Result<T> = std::result::Result<T, Error>;
 
 /// Refuse a state or array that holds NaN or inf, naming the field and index.
 pub fn check_finite(name: &str, values: &[f64]) -> Result<()> {
     match values.iter().position(|v| !v.is_finite()) {
-        Some(i) => Err(Error::input(format!("{name}[{i}] must be finite, got {}", values[i]))),
+        Some(i) => Err(Error::input(format!("{name}[{i}] must be finite, got {}", Shown(values[i])))),
         None => Ok(()),
     }
 }
@@ -64,4 +84,31 @@ pub fn check_len(name: &str, values: &[f64], n: usize) -> Result<()> {
         return Err(Error::input(format!("{name} must have {n} entries (one per link), got {}", values.len())));
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Shown;
+
+    #[test]
+    fn numbers_in_messages_are_short_at_every_scale() {
+        let shown = |x: f64| Shown(x).to_string();
+        // Rust's shortest digits in the middle range, as before.
+        assert_eq!(shown(0.25), "0.25");
+        assert_eq!(shown(-3.0), "-3");
+        assert_eq!(shown(0.0), "0");
+        assert_eq!(shown(1e-4), "0.0001");
+        assert_eq!(shown(1e15), "1000000000000000");
+        assert_eq!((shown(f64::NAN), shown(f64::INFINITY), shown(f64::NEG_INFINITY)), ("NaN".into(), "inf".into(), "-inf".into()));
+        // Exponent form (Python's repr) at the ends, where Rust writes every digit.
+        assert_eq!(shown(1e16), "1e+16");
+        assert_eq!(shown(1e300), "1e+300");
+        assert_eq!(shown(-2.5e-7), "-2.5e-07");
+        assert_eq!(shown(f64::MAX), "1.7976931348623157e+308");
+        assert_eq!(shown(5e-324), "5e-324");
+        // The digits round-trip.
+        for x in [1.2345678901234567e200, -9.87654321e-150, 3e-5] {
+            assert_eq!(shown(x).parse::<f64>().unwrap(), x);
+        }
+    }
 }

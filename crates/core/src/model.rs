@@ -1,5 +1,5 @@
 //! The validated, immutable chain: constant parameters only (work buffers live in `Workspace`).
-use crate::error::{check_finite, check_len, Error, Result};
+use crate::error::{check_finite, check_len, Error, Result, Shown};
 
 /// The largest angle (rad) a state may hold: beyond it an angle has
 /// no digits left below a turn, and differences of angles (`cos(theta_a - theta_b)`) overflow
@@ -64,10 +64,10 @@ pub struct Cart {
 impl Cart {
     pub fn new(mass: f64, damping: f64) -> Result<Self> {
         if !(mass.is_finite() && mass > 0.0) {
-            return Err(Error::input(format!("cart mass must be > 0 and finite, got {mass}")));
+            return Err(Error::input(format!("cart mass must be > 0 and finite, got {}", Shown(mass))));
         }
         if !(damping.is_finite() && damping >= 0.0) {
-            return Err(Error::input(format!("cart damping must be >= 0 and finite, got {damping}")));
+            return Err(Error::input(format!("cart damping must be >= 0 and finite, got {}", Shown(damping))));
         }
         Ok(Cart { mass, damping })
     }
@@ -88,19 +88,19 @@ impl Chain {
         check_len("inertia", &inertia, n)?;
         for (i, &l) in lengths.iter().enumerate() {
             if !(l.is_finite() && l > 0.0) {
-                return Err(Error::input(format!("lengths[{i}] must be > 0 and finite, got {l}")));
+                return Err(Error::input(format!("lengths[{i}] must be > 0 and finite, got {}", Shown(l))));
             }
         }
         for (name, values) in [("masses", masses), ("inertia", &inertia[..])] {
             for (i, &v) in values.iter().enumerate() {
                 if !(v.is_finite() && v >= 0.0) {
-                    return Err(Error::input(format!("{name}[{i}] must be >= 0 and finite, got {v}")));
+                    return Err(Error::input(format!("{name}[{i}] must be >= 0 and finite, got {}", Shown(v))));
                 }
             }
         }
         check_finite("com", &com)?;
         if !g.is_finite() {
-            return Err(Error::input(format!("g must be finite, got {g}")));
+            return Err(Error::input(format!("g must be finite, got {}", Shown(g))));
         }
         let total: f64 = masses.iter().sum();
         if !total.is_finite() {
@@ -167,12 +167,12 @@ impl Chain {
         for (name, values) in [("damping", damping), ("friction", friction)] {
             for (i, &v) in values.iter().enumerate() {
                 if !(v.is_finite() && v >= 0.0) {
-                    return Err(Error::input(format!("{name}[{i}] must be >= 0 and finite, got {v}")));
+                    return Err(Error::input(format!("{name}[{i}] must be >= 0 and finite, got {}", Shown(v))));
                 }
             }
         }
         if !(friction_velocity.is_finite() && friction_velocity > 0.0) {
-            return Err(Error::input(format!("friction_velocity must be > 0 and finite, got {friction_velocity}")));
+            return Err(Error::input(format!("friction_velocity must be > 0 and finite, got {}", Shown(friction_velocity))));
         }
         let any = damping.iter().chain(friction).any(|&v| v > 0.0);
         let inv_velocity = 1.0 / friction_velocity;
@@ -292,7 +292,7 @@ impl Chain {
             return Ok(());
         }
         match values.iter().position(|v| v.abs() > MAX_STATE) {
-            Some(i) => Err(Error::input(format!("{name}[{i}] must be within +-{MAX_STATE:e} rad, got {}", values[i]))),
+            Some(i) => Err(Error::input(format!("{name}[{i}] must be within +-{MAX_STATE:e} rad, got {}", Shown(values[i])))),
             None => Ok(()),
         }
     }
@@ -308,6 +308,11 @@ mod tests {
         assert_eq!(e, Error::input("lengths[2] must be > 0 and finite, got 0"));
         let e = Chain::new(&[1.0, f64::NAN], &[1.0; 2], None, None, 9.81).unwrap_err();
         assert!(e.to_string().starts_with("lengths[1] must be > 0"), "{e}");
+        // Huge values in exponent form, not as 301 digits.
+        let e = Chain::new(&[1.0, -1e300], &[1.0; 2], None, None, 9.81).unwrap_err();
+        assert_eq!(e, Error::input("lengths[1] must be > 0 and finite, got -1e+300"));
+        let chain = Chain::new(&[1.0, 1.0], &[1.0; 2], None, None, 9.81).unwrap();
+        assert_eq!(chain.check_state("theta0", &[0.5, 1e300]).unwrap_err(), Error::input("theta0[1] must be within +-1e15 rad, got 1e+300"));
     }
 
     #[test]

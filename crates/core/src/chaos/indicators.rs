@@ -24,7 +24,7 @@ use super::{check_steps, Tangent};
 use crate::dynamics::base::{Drive, Pivot};
 use crate::dynamics::system::{OdeSystem, NON_FINITE};
 use crate::dynamics::torque::Builtin;
-use crate::error::{check_finite, Error, Result};
+use crate::error::{check_finite, Error, Result, Shown};
 use crate::integrators::Rk4;
 use crate::model::Chain;
 use crate::par::*;
@@ -172,10 +172,10 @@ fn moving(pivot: Option<&Pivot>) -> Option<&Pivot> {
 fn check(chain: &Chain, t_end: f64, dt: f64, which: Indicator, deviations: Option<&[f64]>) -> Result<u64> {
     let d = 2 * chain.n();
     if !(t_end.is_finite() && t_end > 0.0) {
-        return Err(Error::input(format!("t_end must be > 0 and finite, got {t_end}")));
+        return Err(Error::input(format!("t_end must be > 0 and finite, got {}", Shown(t_end))));
     }
     if !(dt.is_finite() && dt > 0.0 && dt <= t_end) {
-        return Err(Error::input(format!("dt must be > 0, finite and <= t_end, got {dt}")));
+        return Err(Error::input(format!("dt must be > 0, finite and <= t_end, got {}", Shown(dt))));
     }
     if let Indicator::Gali(k) = which {
         if !(2..=d).contains(&k) {
@@ -325,7 +325,7 @@ pub fn certified_indicators(
     let (above, rule) = which.chaos_rule();
     let threshold = match threshold.or(rule) {
         Some(t) if t.is_finite() => t,
-        Some(t) => return Err(Error::input(format!("threshold must be finite, got {t}"))),
+        Some(t) => return Err(Error::input(format!("threshold must be finite, got {}", Shown(t)))),
         None => {
             return Err(Error::input(format!(
                 "a certified {} map needs a threshold: the value above which a cell counts as chaotic (megno, sali and gali have their own)",

@@ -10,7 +10,7 @@ use crate::dynamics::general::{Load, TANGENT_SCRATCH};
 use crate::dynamics::system::{singular, ChainSystem, Form, OdeSystem, NON_FINITE};
 use crate::dynamics::torque::{Builtin, Timed, TorqueSource};
 use crate::dynamics::Workspace;
-use crate::error::{Error, Result};
+use crate::error::{Error, Result, Shown};
 use crate::integrators::Rk4;
 use crate::interp::hermite;
 use crate::model::Chain;
@@ -171,10 +171,10 @@ pub fn lyapunov(
     chain.check_state("theta0", theta0)?;
     chain.check_state("omega0", omega0)?;
     if !(t_end.is_finite() && t_end > 0.0) {
-        return Err(Error::input(format!("t_end must be > 0 and finite, got {t_end}")));
+        return Err(Error::input(format!("t_end must be > 0 and finite, got {}", Shown(t_end))));
     }
     if !(dt.is_finite() && dt > 0.0 && dt <= t_end) {
-        return Err(Error::input(format!("dt must be > 0, finite and <= t_end, got {dt}")));
+        return Err(Error::input(format!("dt must be > 0, finite and <= t_end, got {}", Shown(dt))));
     }
     let m = chain.state_len();
     let k = k.unwrap_or(m);
@@ -334,7 +334,7 @@ pub fn certified_flips(
 ) -> Result<Certified> {
     let tolerance = tolerance.unwrap_or(dt);
     if !(tolerance.is_finite() && tolerance >= 0.0) {
-        return Err(Error::input(format!("time_tolerance must be >= 0 and finite, got {tolerance}")));
+        return Err(Error::input(format!("time_tolerance must be >= 0 and finite, got {}", Shown(tolerance))));
     }
     let coarse = first_flips(chain, theta0, omega0, t_max, dt, link, torque, pivot, watch)?;
     let fine = first_flips(chain, theta0, omega0, t_max, 0.5 * dt, link, torque, pivot, watch)?;
@@ -360,10 +360,10 @@ fn check_flips(chain: &Chain, theta0: &[f64], omega0: &[f64], t_max: f64, dt: f6
     crate::error::check_finite("theta0", theta0)?;
     crate::error::check_finite("omega0", omega0)?;
     if !(t_max.is_finite() && t_max > 0.0) {
-        return Err(Error::input(format!("t_max must be > 0 and finite, got {t_max}")));
+        return Err(Error::input(format!("t_max must be > 0 and finite, got {}", Shown(t_max))));
     }
     if !(dt.is_finite() && dt > 0.0) {
-        return Err(Error::input(format!("dt must be > 0 and finite, got {dt}")));
+        return Err(Error::input(format!("dt must be > 0 and finite, got {}", Shown(dt))));
     }
     if let Some(k) = link {
         if k >= n {

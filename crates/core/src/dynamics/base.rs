@@ -6,7 +6,7 @@ use std::fmt;
 use std::sync::Arc;
 
 use super::torque::{Builtin, Interp, TorqueSource};
-use crate::error::{Error, Result};
+use crate::error::{Error, Result, Shown};
 use crate::trig::lanes::{each, sin_cos, Lane, LANES};
 
 /// A prescribed coordinate of the pivot as a function of time, with two derivatives.
@@ -54,7 +54,7 @@ impl Axis {
     pub fn sinusoid(name: &str, amplitude: f64, frequency: f64, phase: f64, offset: f64) -> Result<Self> {
         for (what, v) in [("amplitude", amplitude), ("frequency", frequency), ("phase", phase), ("offset", offset)] {
             if !v.is_finite() {
-                return Err(Error::input(format!("pivot {name}: {what} must be finite, got {v}")));
+                return Err(Error::input(format!("pivot {name}: {what} must be finite, got {}", Shown(v))));
             }
         }
         Ok(Axis::Sinusoid { amplitude, frequency, phase, offset })
@@ -62,7 +62,7 @@ impl Axis {
 
     pub fn fixed(name: &str, x: f64) -> Result<Self> {
         if !x.is_finite() {
-            return Err(Error::input(format!("pivot {name} must be finite, got {x}")));
+            return Err(Error::input(format!("pivot {name} must be finite, got {}", Shown(x))));
         }
         Ok(Axis::Fixed(x))
     }

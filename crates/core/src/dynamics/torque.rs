@@ -2,7 +2,7 @@
 //! absolute angles (seed 000's convention). [`Joint`] wraps a source of joint-motor torques `u_i`
 //! (acting between link i-1 and link i, the robotics convention) and maps them to
 //! `tau_i = u_i - u_{i+1}`.
-use crate::error::{check_finite, Error, Result};
+use crate::error::{check_finite, Error, Result, Shown};
 use crate::trig::lanes::{each, sin_cos, Lane, LANES};
 
 pub trait TorqueSource {
@@ -74,7 +74,7 @@ impl Builtin {
         }
         check_finite("t", &times)?;
         if let Some(i) = (1..k).find(|&i| !(times[i] > times[i - 1])) {
-            return Err(Error::input(format!("t[{i}] must be > t[{}] (strictly increasing), got {} after {}", i - 1, times[i], times[i - 1])));
+            return Err(Error::input(format!("t[{i}] must be > t[{}] (strictly increasing), got {} after {}", i - 1, Shown(times[i]), Shown(times[i - 1]))));
         }
         if values.len() != k * n {
             return Err(Error::input(format!("values must have shape ({k}, {n}) (one row per sample, one column per link), got {} numbers", values.len())));

@@ -4,7 +4,7 @@
 //! or stops the run (terminal).
 use crate::dynamics::system::Form;
 use crate::dynamics::Workspace;
-use crate::error::{Error, Result};
+use crate::error::{Error, Result, Shown};
 use crate::model::Chain;
 use std::sync::Arc;
 
@@ -66,7 +66,7 @@ impl EventSpec {
                 crate::error::check_finite("event theta coefficients", theta)?;
                 crate::error::check_finite("event omega coefficients", omega)?;
                 if !constant.is_finite() {
-                    return Err(Error::input(format!("event constant must be finite, got {constant}")));
+                    return Err(Error::input(format!("event constant must be finite, got {}", Shown(*constant))));
                 }
                 Ok(())
             }

@@ -13,7 +13,7 @@ use crate::dynamics::base::Force;
 use crate::dynamics::system::{ChainSystem, Form};
 use crate::dynamics::torque::{Builtin, Joint, TorqueSource};
 use crate::dynamics::Workspace;
-use crate::error::{check_finite, Error, Result};
+use crate::error::{check_finite, Error, Result, Shown};
 use crate::integrators::Method;
 use crate::model::Chain;
 use crate::par::*;
@@ -480,7 +480,7 @@ impl Steppers {
     /// [`Steppers::step`]'s checks of its inputs and outputs.
     fn checked_step(&self, torques: &[f64], forces: &[f64], span: f64, active: &[bool], states: &[f64], balance: &[f64]) -> Result<()> {
         if !(span.is_finite() && span > 0.0) {
-            return Err(Error::input(format!("span must be > 0 and finite, got {span}")));
+            return Err(Error::input(format!("span must be > 0 and finite, got {}", Shown(span))));
         }
         let (count, n) = (self.len(), self.chain.n());
         let want_forces = if self.chain.cart().is_some() { count } else { 0 };

@@ -13,7 +13,7 @@ use crate::dynamics::sensitivity::Input;
 use crate::dynamics::system::{check_finite_state, ChainSystem, Form, Layout};
 use crate::dynamics::torque::TorqueSource;
 use crate::dynamics::Workspace;
-use crate::error::{Error, Result};
+use crate::error::{Error, Result, Shown};
 use crate::integrators::{Dop853, Gauss, Integrator, Method, Rk4};
 use crate::model::Chain;
 use crate::par::*;
@@ -158,21 +158,21 @@ impl Settings {
     /// Check the settings for a run to `t_end`; returns the number of output rows.
     pub fn validate(&self, t_end: f64) -> Result<usize> {
         if !(t_end.is_finite() && t_end > 0.0) {
-            return Err(Error::input(format!("t_end must be > 0 and finite, got {t_end}")));
+            return Err(Error::input(format!("t_end must be > 0 and finite, got {}", Shown(t_end))));
         }
         if let Some(dt) = self.dt {
             if !(dt.is_finite() && dt > 0.0) {
-                return Err(Error::input(format!("dt must be > 0 and finite, got {dt}")));
+                return Err(Error::input(format!("dt must be > 0 and finite, got {}", Shown(dt))));
             }
         } else if !self.method.adaptive() || !self.adaptive {
             return Err(Error::input(format!("method {} takes a fixed step: give dt", self.method.name())));
         }
         if self.method.adaptive() {
             if !(self.rtol.is_finite() && self.rtol >= defaults::MIN_RTOL) {
-                return Err(Error::input(format!("rtol must be >= {:e} and finite, got {}", defaults::MIN_RTOL, self.rtol)));
+                return Err(Error::input(format!("rtol must be >= {:e} and finite, got {}", defaults::MIN_RTOL, Shown(self.rtol))));
             }
             if !(self.atol.is_finite() && self.atol >= 0.0) {
-                return Err(Error::input(format!("atol must be >= 0 and finite, got {}", self.atol)));
+                return Err(Error::input(format!("atol must be >= 0 and finite, got {}", Shown(self.atol))));
             }
         }
         self.resolved_form()?;
@@ -180,10 +180,10 @@ impl Settings {
             Some(te) => {
                 for (i, &v) in te.iter().enumerate() {
                     if !(v.is_finite() && (0.0..=t_end).contains(&v)) {
-                        return Err(Error::input(format!("t_eval[{i}] must lie in [0, t_end = {t_end}], got {v}")));
+                        return Err(Error::input(format!("t_eval[{i}] must lie in [0, t_end = {}], got {}", Shown(t_end), Shown(v))));
                     }
                     if i > 0 && v < te[i - 1] {
-                        return Err(Error::input(format!("t_eval must be ascending: t_eval[{i}] = {v} < t_eval[{}] = {}", i - 1, te[i - 1])));
+                        return Err(Error::input(format!("t_eval must be ascending: t_eval[{i}] = {} < t_eval[{}] = {}", Shown(v), i - 1, Shown(te[i - 1]))));
                     }
                 }
                 te.len() as f64

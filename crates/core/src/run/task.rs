@@ -4,7 +4,7 @@
 //! step is one call into the core: its Python layer (clipping, scaling, the outcome's sums)
 //! cost as much as the physics of 256 double pendulums.
 use super::live::Column;
-use crate::error::{Error, Result};
+use crate::error::{Error, Result, Shown};
 use crate::model::Chain;
 use crate::trig::lanes::{each, on_path, sin_cos, Lane, Path, LANES};
 
@@ -45,14 +45,12 @@ pub struct Task {
     pub goal: Goal,
 }
 
-/// `x` as Python writes it (`nan`, `inf`), so the environments' messages read alike.
+/// `x` as Python writes it (`nan`, `inf`, `1e+300`), so the environments' messages read alike.
 fn number(x: f64) -> String {
     if x.is_nan() {
         "nan".into()
-    } else if x.is_infinite() {
-        (if x > 0.0 { "inf" } else { "-inf" }).into()
     } else {
-        format!("{x}")
+        Shown(x).to_string()
     }
 }
 
@@ -69,7 +67,7 @@ impl Task {
             return Err(Error::input(format!("a task needs one scale per action component, got {} targets and {} scales", targets.len(), scale.len())));
         }
         if let Some(s) = scale.iter().find(|s| !(s.is_finite() && **s > 0.0)) {
-            return Err(Error::input(format!("each action scale must be > 0 and finite, got {s}")));
+            return Err(Error::input(format!("each action scale must be > 0 and finite, got {}", Shown(*s))));
         }
         let limits: &[f64] = match &goal {
             Goal::Height { above } => std::slice::from_ref(above),
@@ -126,6 +124,15 @@ impl Task {
         }
     }
 
+    /// The values a discrete action takes, as a message names them (`0, 1 or 2`).
+    fn levels() -> String {
+        let all: Vec<String> = (0..Self::LEVELS).map(|v| v.to_string()).collect();
+        match all.split_last() {
+            Some((last, rest)) if !rest.is_empty() => format!("{} or {last}", rest.join(", ")),
+            _ => all.join(""),
+        }
+    }
+
     /// Whether one action is one number (a discrete task of one component), not an array.
     fn one_number(&self) -> bool {
         self.discrete && self.width() == 1
@@ -153,7 +160,7 @@ impl Task {
         for (i, &a) in actions.iter().enumerate() {
             if self.discrete {
                 if !(a.fract() == 0.0 && (0.0..Self::LEVELS as f64).contains(&a)) {
-                    return Err(Error::input(format!("a discrete action must be 0, 1 or 2, got {}{}", number(a), at(i))));
+                    return Err(Error::input(format!("a discrete action must be {}, got {}{}", Self::levels(), number(a), at(i))));
                 }
             } else if !a.is_finite() {
                 return Err(Error::input(format!("action must be finite, got {}{}", number(a), at(i))));
@@ -315,7 +322,7 @@ mod tests {
         // One discrete component: one number per copy (gymnasium's Discrete), so one index or none.
         let single = Task::new(&chain, true, vec![Target::Joint(1)], vec![1.0], observe_all(2), Goal::Height { above: 0.85 }).unwrap();
         assert_eq!((single.action_shape(), discrete.action_shape(), task.action_shape()), (vec![], vec![2], vec![2]));
-        for (bad, shown) in [(f64::INFINITY, "inf"), (0.5, "0.5"), (2.000000001, "2.000000001")] {
+        for (bad, shown) in [(f64::INFINITY, "inf"), (0.5, "0.5"), (2.000000001, "2.000000001"), (1e300, "1e+300")] {
             assert_eq!(
                 message(single.inputs(&chain, &[bad], false, &mut torques[..2], &mut forces)),
                 format!("a discrete action must be 0, 1 or 2, got {shown}")
