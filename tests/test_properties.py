@@ -560,6 +560,9 @@ def test_a_fixed_step_run_longer_than_max_steps_is_refused_before_it_starts():
     with pytest.raises(mp.InputError, match=r"^rk4 with dt = 1 takes 1\.845e19 steps to reach t_end = 1e300, more than "
                                             r"max_steps = 100000000; use a larger dt"):
         mp.simulate(CHAIN, STATE, STATE, 1e300, method="rk4", dt=1.0, t_eval=[0.0])
+    # A tiny dt is named in exponent form, not as twenty digits.
+    with pytest.raises(mp.InputError, match=r"^rk4 with dt = 1e-20 takes "):
+        mp.simulate(CHAIN, STATE, STATE, 1.0, method="rk4", dt=1e-20, t_eval=[0.0])
 
 
 def test_a_flip_map_or_lyapunov_history_that_would_not_fit_is_refused():

@@ -120,7 +120,8 @@ impl Chain {
         let moment: f64 = h.iter().sum();
         if !(g * moment * n as f64).is_finite() {
             return Err(Error::input(format!(
-                "g = {g} with these masses and lengths overflows the gravity torques (g * sum of m c + l m_below = {:e})",
+                "g = {} with these masses and lengths overflows the gravity torques (g * sum of m c + l m_below = {:e})",
+                Shown(g),
                 g * moment
             )));
         }
@@ -313,6 +314,8 @@ mod tests {
         assert_eq!(e, Error::input("lengths[1] must be > 0 and finite, got -1e+300"));
         let chain = Chain::new(&[1.0, 1.0], &[1.0; 2], None, None, 9.81).unwrap();
         assert_eq!(chain.check_state("theta0", &[0.5, 1e300]).unwrap_err(), Error::input("theta0[1] must be within +-1e15 rad, got 1e+300"));
+        let e = Chain::new(&[1.0], &[10.0], None, None, 1e308).unwrap_err();
+        assert!(e.to_string().starts_with("g = 1e+308 with these masses and lengths overflows"), "{e}");
     }
 
     #[test]

@@ -15,7 +15,7 @@ use serde::{Deserialize, Serialize};
 use super::dense::{Hermite, Slope};
 use super::{misfit, Facts, Integrator};
 use crate::dynamics::system::OdeSystem;
-use crate::error::{Error, Result};
+use crate::error::{Error, Result, Shown};
 
 /// The facts of the `stages`-stage method (order 2s, A-stable, symplectic and implicit).
 pub const fn facts(stages: usize) -> Facts {
@@ -341,7 +341,7 @@ impl Integrator for Gauss {
         }
         if !converged {
             self.last_h = None;
-            return Err(Error::integration(t, format!("the implicit stage equations of gauss{} did not converge; reduce dt (now {h})", 2 * s)));
+            return Err(Error::integration(t, format!("the implicit stage equations of gauss{} did not converge; reduce dt (now {})", 2 * s, Shown(h))));
         }
         for m in 0..d {
             let inc: f64 = (0..s).map(|i| self.b[i] * self.k[i * d + m]).sum::<f64>() * h + self.comp[m];

@@ -227,9 +227,10 @@ pub(crate) fn check_fixed_steps(settings: &Settings, t_end: f64) -> Result<()> {
             let steps = fixed_steps(t_end, dt);
             if steps > settings.max_steps {
                 return Err(Error::input(format!(
-                    "{} with dt = {dt} takes {:.3e} steps to reach t_end = {t_end:e}, more than max_steps = {}; \
+                    "{} with dt = {} takes {:.3e} steps to reach t_end = {t_end:e}, more than max_steps = {}; \
                      use a larger dt or a shorter t_end (or raise max_steps)",
                     settings.method.name(),
+                    Shown(dt),
                     steps as f64,
                     settings.max_steps
                 )));
