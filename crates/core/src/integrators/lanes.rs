@@ -204,8 +204,8 @@ impl Rk4Lanes {
     #[inline(always)]
     pub fn step_system_at(&mut self, y: &mut [Lane], t: &Lane, dt: f64, active: &Lane, sys: &mut impl LaneSystem) -> Stepped {
         // A system of four or six lanes (the double and triple pendulums, a pendulum on a cart)
-        // takes loops of a compile-time length, which LLVM unrolls and keeps in registers: the
-        // same operations, so the same bits.
+        // takes loops of a compile-time length, which LLVM unrolls: the same operations, so the
+        // same bits.
         match y.len() {
             4 => return fixed::<4, 1, _>([y], [t], dt, [active], [sys], [self])[0],
             6 => return fixed::<6, 1, _>([y], [t], dt, [active], [sys], [self])[0],
