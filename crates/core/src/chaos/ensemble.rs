@@ -269,6 +269,24 @@ fn rk4_rows(rows: &mut Rows, t_end: f64, dt: f64, watch: &Watch) -> Result<()> {
             if let Some(j) = (0..count).find(|&j| nonfinite[j]) {
                 return Err(rows.error(lo + j, t + h, NON_FINITE));
             }
+            // The largest |theta| of each lane, over whole lanes (vectorised), and a lane by
+            // lane look only when one of them has gone over the top for the first time.
+            let mut top = [0.0f64; LANES];
+            for v in &y[..n] {
+                for i in 0..LANES {
+                    top[i] = top[i].max(v[i].abs());
+                }
+            }
+            let mut news = false;
+            for i in 0..LANES {
+                news |= below[i] & !(top[i] < PI) & !found[i];
+            }
+            if !news {
+                for i in 0..LANES {
+                    below[i] = top[i] < PI;
+                }
+                continue;
+            }
             for j in 0..count {
                 let now_below = (0..n).all(|a| y[a][j].abs() < PI);
                 if below[j] && !now_below && !found[j] {

@@ -352,12 +352,16 @@ fn fixed<const M: usize, const P: usize, S: LaneSystem>(
             let h = if stage < 2 { half } else { dt };
             for p in 0..P {
                 let (k, tmp, _) = &mut bufs[p];
-                let (ks, y0) = (&*k[stage], &*y[p]);
+                // Through locals: LLVM cannot tell the buffers apart, and with stores into one
+                // between loads from the others it kept every lane a scalar operation.
+                let (ks, y0) = (*k[stage], *y[p]);
+                let mut next = [[0.0; LANES]; M];
                 for m in 0..M {
                     for i in 0..LANES {
-                        tmp[m][i] = h.mul_add(ks[m][i], y0[m][i]);
+                        next[m][i] = h.mul_add(ks[m][i], y0[m][i]);
                     }
                 }
+                **tmp = next;
             }
         }
     }
@@ -371,26 +375,34 @@ fn fixed<const M: usize, const P: usize, S: LaneSystem>(
             continue;
         }
         let mut poison = [0.0; LANES];
-        let (k, tmp, _) = &mut bufs[p];
-        let [k1, k2, k3, k4] = k;
-        let y0 = &mut *y[p];
+        let (k, _, _) = &bufs[p];
+        let [k1, k2, k3, k4] = [*k[0], *k[1], *k[2], *k[3]];
+        let y0 = *y[p];
+        let mut next = [[0.0; LANES]; M];
         for m in 0..M {
             for i in 0..LANES {
-                tmp[m][i] = sixth.mul_add(2.0f64.mul_add(k2[m][i] + k3[m][i], k1[m][i]) + k4[m][i], y0[m][i]);
-                poison[i] += tmp[m][i] * 0.0;
+                next[m][i] = sixth.mul_add(2.0f64.mul_add(k2[m][i] + k3[m][i], k1[m][i]) + k4[m][i], y0[m][i]);
             }
         }
-        let (mut keep, mut nonfinite) = ([false; LANES], [false; LANES]);
-        for i in 0..LANES {
-            let finite = poison[i] == 0.0;
-            keep[i] = active[p][i] > 0.0 && finite;
-            nonfinite[i] = active[p][i] > 0.0 && !finite;
-        }
-        for (yv, t) in y0.iter_mut().zip(tmp.iter()) {
+        // A pass of its own: in the loop above, LLVM vectorised across the state's components
+        // (two lanes at a time) instead of the lanes.
+        for v in &next {
             for i in 0..LANES {
-                yv[i] = if keep[i] { t[i] } else { yv[i] };
+                poison[i] += v[i] * 0.0;
             }
         }
+        let (mut keep, mut nonfinite) = ([0.0; LANES], [false; LANES]);
+        for i in 0..LANES {
+            let (on, finite) = (active[p][i] > 0.0, poison[i] == 0.0);
+            keep[i] = if on & finite { 1.0 } else { 0.0 };
+            nonfinite[i] = on & !finite;
+        }
+        for m in 0..M {
+            for i in 0..LANES {
+                next[m][i] = if keep[i] > 0.0 { next[m][i] } else { y0[m][i] };
+            }
+        }
+        *y[p] = next;
         out[p] = Ok(nonfinite);
     }
     out
