@@ -2,7 +2,9 @@
 //! `theta[link][lane]`): plain loops over fixed-size arrays that LLVM vectorises across states.
 //! The arithmetic is [`Chain::accelerations_into`]'s: the closed form of two links, the O(N)
 //! recursion (`eliminate`, `substitute`) otherwise, its terms regrouped so that one link's
-//! division waits on the one below through a single fused multiply-add (`recursion`), with
+//! division waits on the one below through a single fused multiply-add (`recursion`); three
+//! links without a cart in a closed form of their own, by the adjugate ([`triple`]: one
+//! division where the recursion takes two, and no passes over the links). With
 //! the lanes' fdlibm `sin`/`cos` ([`crate::trig::lanes`], within 1 ulp of glibc's) and, as the
 //! flip kernel does, its product-sums fused by explicit `mul_add` (one correctly rounded
 //! operation: a hardware FMA on the AVX paths, glibc's exact `fma()` on the portable one, so
@@ -25,12 +27,15 @@ pub struct LaneScratch {
     /// `sin` and `cos` hold the angles' trig already ([`LaneScratch::trig_of`]): the next
     /// accelerations take it instead of computing it again (and clear this).
     known: bool,
+    /// The triple pendulum's closed form ([`triple`]): its mass matrix's cofactors `C_11, C_12,
+    /// C_13, C_22, C_23, C_33` and `1 / det`, for the tangent's solve.
+    adjugate: [Lane; 7],
 }
 
 impl LaneScratch {
     pub fn new(n: usize) -> Self {
         let z = vec![[0.0; LANES]; n];
-        LaneScratch { sin: z.clone(), cos: z.clone(), uxi: z.clone(), uyi: z.clone(), dinv: z, known: false }
+        LaneScratch { sin: z.clone(), cos: z.clone(), uxi: z.clone(), uyi: z.clone(), dinv: z, known: false, adjugate: [[0.0; LANES]; 7] }
     }
 
     /// The angles' `sin` and `cos`, computed once for the forces of a moving pivot and the
@@ -114,10 +119,11 @@ pub fn accelerations_on(
     active: &Lane,
     cart: Option<CartLanes>,
 ) -> Result<(), LaneSingular> {
-    if chain.n() == 2 {
-        return double(chain, theta, omega, tau, out, s, active, cart);
+    match (chain.n(), &cart) {
+        (2, _) => double(chain, theta, omega, tau, out, s, active, cart),
+        (3, None) => triple(chain, theta, omega, tau, out, s, active),
+        _ => recursion(chain, theta, omega, tau, out, s, active, cart),
     }
-    recursion(chain, theta, omega, tau, out, s, active, cart)
 }
 
 /// The verdict of the pivot tests: `worst` holds, per lane, the first link (from the bottom)
@@ -125,10 +131,15 @@ pub fn accelerations_on(
 /// the loops cost the generic double pendulum's lanes a fifth of their time in mask conversions.
 #[inline(always)]
 fn verdict(worst: &Lane) -> Result<(), LaneSingular> {
-    let first = worst.iter().fold(-1.0f64, |a, &w| if w > a { w } else { a });
-    if first < 0.0 {
+    // Whether any lane failed first, one vector comparison; the first link only then.
+    let mut any = false;
+    for w in worst {
+        any |= *w >= 0.0;
+    }
+    if !any {
         return Ok(());
     }
+    let first = worst.iter().fold(-1.0f64, |a, &w| if w > a { w } else { a });
     Err(LaneSingular { link: Singular(first as usize), lanes: std::array::from_fn(|i| worst[i] >= 0.0), nonfinite: [false; LANES] })
 }
 
@@ -186,6 +197,67 @@ fn double(
     if let Some(c) = cart {
         *c.x_ddot = xdd;
     }
+    verdict(&worst)
+}
+
+/// The triple pendulum (no cart) in closed form: the 3 x 3 mass matrix `K_ab cos(theta_a -
+/// theta_b)` (`K_aa` the diagonal, `K_ab = l_a h_b` for `a < b`) solved by its adjugate, one
+/// division, where the recursion takes two and its passes over the links. The pivot tests are
+/// the recursion's, multiplied out: its second link's pivot is `C_11 / d_3` and its first's
+/// `det / C_11` (`C` the cofactors), each against `PIVOT_TOL` times the link's `d`, the lower
+/// link failing first. The adjugate and `1 / det` stay in the scratch for the tangent's solve.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn triple(chain: &Chain, theta: &[Lane], omega: &[Lane], tau: &[Lane], out: &mut [Lane], s: &mut LaneScratch, active: &Lane) -> Result<(), LaneSingular> {
+    let (d1, d2, d3, g) = (chain.diag[0], chain.diag[1], chain.diag[2], chain.g);
+    let (l, h) = (&chain.lengths, &chain.h);
+    let (k12, k13, k23) = (l[0] * h[1], l[0] * h[2], l[1] * h[2]);
+    let (gh1, gh2, gh3) = (g * h[0], g * h[1], g * h[2]);
+    let (tol2, tol1) = (PIVOT_TOL * d2 * d3, PIVOT_TOL * d1);
+    if !std::mem::take(&mut s.known) {
+        for a in 0..3 {
+            (s.sin[a], s.cos[a]) = sin_cos(&theta[a]);
+        }
+    }
+    let ([s1, s2, s3], [c1, c2, c3]) = ([s.sin[0], s.sin[1], s.sin[2]], [s.cos[0], s.cos[1], s.cos[2]]);
+    let ([w1, w2, w3], [t1, t2, t3]) = ([omega[0], omega[1], omega[2]], [tau[0], tau[1], tau[2]]);
+    let mut worst = [-1.0f64; LANES];
+    let (mut a1, mut a2, mut a3) = ([0.0; LANES], [0.0; LANES], [0.0; LANES]);
+    let mut adj = [[0.0; LANES]; 7];
+    for i in 0..LANES {
+        let (s12, c12) = (s1[i].mul_add(c2[i], -(c1[i] * s2[i])), c1[i].mul_add(c2[i], s1[i] * s2[i]));
+        let (s13, c13) = (s1[i].mul_add(c3[i], -(c1[i] * s3[i])), c1[i].mul_add(c3[i], s1[i] * s3[i]));
+        let (s23, c23) = (s2[i].mul_add(c3[i], -(c2[i] * s3[i])), c2[i].mul_add(c3[i], s2[i] * s3[i]));
+        let (q1, q2, q3) = (w1[i] * w1[i], w2[i] * w2[i], w3[i] * w3[i]);
+        let (p12, p13, p23) = (k12 * s12, k13 * s13, k23 * s23);
+        let r1 = (-gh1).mul_add(s1[i], t1[i]) - p12.mul_add(q2, p13 * q3);
+        let r2 = (-gh2).mul_add(s2[i], t2[i]) + p12.mul_add(q1, -(p23 * q3));
+        let r3 = (-gh3).mul_add(s3[i], t3[i]) + p13.mul_add(q1, p23 * q2);
+        let (m12, m13, m23) = (k12 * c12, k13 * c13, k23 * c23);
+        let c11 = (-m23).mul_add(m23, d2 * d3);
+        let c22 = (-m13).mul_add(m13, d1 * d3);
+        let c33 = (-m12).mul_add(m12, d1 * d2);
+        let c12 = m13.mul_add(m23, -(m12 * d3));
+        let c13 = m12.mul_add(m23, -(m13 * d2));
+        let c23 = m12.mul_add(m13, -(d1 * m23));
+        let det = d1.mul_add(c11, m12.mul_add(c12, m13 * c13));
+        let inv = 1.0 / det;
+        a1[i] = c11.mul_add(r1, c12.mul_add(r2, c13 * r3)) * inv;
+        a2[i] = c12.mul_add(r1, c22.mul_add(r2, c23 * r3)) * inv;
+        a3[i] = c13.mul_add(r1, c23.mul_add(r2, c33 * r3)) * inv;
+        let on = active[i] > 0.0;
+        let second = c11 > tol2;
+        worst[i] = if on & !second {
+            1.0
+        } else if on & !(det > tol1 * c11) {
+            0.0
+        } else {
+            -1.0
+        };
+        (adj[0][i], adj[1][i], adj[2][i], adj[3][i], adj[4][i], adj[5][i], adj[6][i]) = (c11, c12, c13, c22, c23, c33, inv);
+    }
+    (out[0], out[1], out[2]) = (a1, a2, a3);
+    s.adjugate = adj;
     verdict(&worst)
 }
 
@@ -320,8 +392,8 @@ fn recursion(
 /// The tangent of [`accelerations`] along `(d_theta, d_omega)`: `d theta_ddot` of every lane into
 /// `out`, for torques that depend on time only, plus `extra`: the generalized forces' own
 /// derivative along the direction (the joints' losses: [`add_loss_tangent`]). `accel` is `theta_ddot` at the same state and `s`
-/// the scratch of that [`accelerations`] call (its trig and, for N != 2, its elimination, which
-/// the solve reuses: the mass matrix is the same). The arithmetic of
+/// the scratch of that [`accelerations`] call (its trig and, for N > 3, its elimination, for
+/// N = 3 its adjugate, which the solve reuses: the mass matrix is the same). The arithmetic of
 /// [`Chain::tangent_accelerations_into`] (`A d_theta_ddot = dr - (dA) theta_ddot`, every term a
 /// sum of `K_ab sin/cos(theta_a - theta_b)` against a vector), its five coupled sums fused into
 /// one pass up and one down; the double pendulum in closed form. Agrees with it to round-off.
@@ -348,9 +420,31 @@ pub fn tangent(chain: &Chain, omega: &[Lane], accel: &[Lane], d_theta: &[Lane], 
         }
         out[a] = r;
     }
+    let mut q = [[0.0; LANES]; 10];
+    if n == 3 {
+        // The rows completed by the links below, then solved by the closed form's adjugate.
+        for a in (0..3).rev() {
+            let (sa, ca, w, dw, dth, acc, r) = (s.sin[a], s.cos[a], omega[a], d_omega[a], d_theta[a], accel[a], out[a]);
+            let (ha, la) = (h[a], l[a]);
+            let mut row = [0.0; LANES];
+            for i in 0..LANES {
+                let (c, sn, dt) = (ca[i], sa[i], dth[i]);
+                row[i] = r[i] + la * coupled(&q, i, c, sn, dt);
+                accumulate(&mut q, i, ha, c, sn, dt, (w[i], dw[i], acc[i]));
+            }
+            out[a] = row;
+        }
+        let [c11, c12, c13, c22, c23, c33, inv] = &s.adjugate;
+        let (r1, r2, r3) = (out[0], out[1], out[2]);
+        for i in 0..LANES {
+            out[0][i] = c11[i].mul_add(r1[i], c12[i].mul_add(r2[i], c13[i] * r3[i])) * inv[i];
+            out[1][i] = c12[i].mul_add(r1[i], c22[i].mul_add(r2[i], c23[i] * r3[i])) * inv[i];
+            out[2][i] = c13[i].mul_add(r1[i], c23[i].mul_add(r2[i], c33[i] * r3[i])) * inv[i];
+        }
+        return;
+    }
     // Down the chain: the links below (suffix sums of h_b u_b n_b) complete each row, which the
     // elimination (its pivots and u from the accelerations) takes at once.
-    let mut q = [[0.0; LANES]; 10];
     let (mut wx, mut wy) = ([0.0; LANES], [0.0; LANES]);
     for a in (0..n).rev() {
         let (sa, ca, w, dw, dth, acc) = (s.sin[a], s.cos[a], omega[a], d_omega[a], d_theta[a], accel[a]);
@@ -647,6 +741,31 @@ mod tests {
                 assert!((kin[i] - t).abs() <= 1e-12 * (1.0 + t.abs()), "N = {n}, lane {i}: T");
                 assert!((en[i] - e).abs() <= 1e-12 * (1.0 + e.abs()), "N = {n}, lane {i}: E");
             }
+        }
+    }
+
+    #[test]
+    fn the_triple_pendulums_pivot_tests_fail_where_and_as_the_recursions() {
+        // A nearly massless link carrying mass: the mass matrix is nearly singular where it lines
+        // up with the link below (the middle one: its own pivot fails; the top one: the first
+        // link's). Lane 0 lined up, lane 1 not, lane 2 lined up but inactive.
+        for (masses, angles, link) in [([1.0, 1e-18, 1.0], [0.3, 0.5, 0.5], 1), ([1e-18, 1.0, 1.0], [0.4, 0.4, 0.1], 0)] {
+            let chain = Chain::new(&[1.0; 3], &masses, None, None, 9.81).unwrap();
+            let apart = [-0.2, 0.1, 0.4];
+            let (mut th, om, tau) = (apart.map(|a| [a; LANES]).to_vec(), vec![[0.5; LANES]; 3], vec![[0.0; LANES]; 3]);
+            for a in 0..3 {
+                (th[a][0], th[a][2]) = (angles[a], angles[a]);
+            }
+            let mut active = [1.0; LANES];
+            active[2] = 0.0;
+            let (mut out, mut scratch) = (vec![[0.0; LANES]; 3], LaneScratch::new(3));
+            let e = accelerations(&chain, &th, &om, &tau, &mut out, &mut scratch, &active).unwrap_err();
+            let mut ws = Workspace::new(3);
+            let want = chain.accelerations_into(&angles, &[0.5; 3], &[0.0; 3], &mut [0.0; 3], &mut ws).unwrap_err();
+            assert_eq!((e.link, want), (Singular(link), Singular(link)), "masses {masses:?}");
+            assert_eq!(e.lanes, std::array::from_fn(|i| i == 0));
+            // Apart from the line-up, the same chain passes.
+            chain.accelerations_into(&apart, &[0.5; 3], &[0.0; 3], &mut [0.0; 3], &mut ws).unwrap();
         }
     }
 
