@@ -21,6 +21,12 @@ pub trait LaneSystem {
     /// for the accelerations. Every lane is computed; only the `active` ones (`> 0`) are checked
     /// (an inactive lane's rates may be anything, and stay in its own lane).
     fn rates(&mut self, at: &Lane, y: &[Lane], dy: &mut [Lane], scratch: &mut LaneScratch, active: &Lane) -> std::result::Result<(), LaneSingular>;
+
+    /// Whether the rates read the stage's times `at` (the steppers compute them only then; a
+    /// system that does not may get any times).
+    fn timed(&self) -> bool {
+        true
+    }
 }
 
 /// A chain's own equations in lanes under generalized torques `tau` held over the step, or
@@ -47,6 +53,11 @@ pub struct ChainLanes<'a> {
 }
 
 impl LaneSystem for ChainLanes<'_> {
+    #[inline(always)]
+    fn timed(&self) -> bool {
+        self.drive.is_some() || self.pivot.is_some()
+    }
+
     #[inline(always)]
     fn rates(&mut self, at: &Lane, y: &[Lane], dy: &mut [Lane], scratch: &mut LaneScratch, active: &Lane) -> std::result::Result<(), LaneSingular> {
         let chain = self.chain;
@@ -217,11 +228,15 @@ impl Rk4Lanes {
         for stage in 0..4 {
             {
                 let src: &[Lane] = if stage == 0 { &y[..] } else { &tmp[..] };
-                let at = each(|i| match stage {
-                    0 => t[i],
-                    3 => t[i] + dt,
-                    _ => t[i] + half,
-                });
+                let at = if sys.timed() {
+                    each(|i| match stage {
+                        0 => t[i],
+                        3 => t[i] + dt,
+                        _ => t[i] + half,
+                    })
+                } else {
+                    *t
+                };
                 sys.rates(&at, src, &mut k[stage], scratch, active).map_err(|s| (stage, s.seen_in(src)))?;
             }
             if stage < 3 {
@@ -323,45 +338,43 @@ fn fixed<const M: usize, const P: usize, S: LaneSystem>(
     rk: [&mut Rk4Lanes; P],
 ) -> [Stepped; P] {
     let half = 0.5 * dt;
-    let y: [&mut [Lane; M]; P] = y.map(|y| (&mut y[..M]).try_into().expect("M lanes of state"));
-    let mut bufs = rk.map(|r| {
-        let Rk4Lanes { k, tmp, scratch, .. } = r;
-        let [k1, k2, k3, k4] = k;
-        let k: [&mut [Lane; M]; 4] = [k1, k2, k3, k4].map(|k| (&mut k[..M]).try_into().expect("M lanes of stage"));
-        let tmp: &mut [Lane; M] = (&mut tmp[..M]).try_into().expect("M lanes of stage state");
-        (k, tmp, scratch)
-    });
     let mut failed: [Option<(usize, LaneSingular)>; P] = [None; P];
     for stage in 0..4 {
         for p in 0..P {
             if failed[p].is_some() {
                 continue;
             }
-            let at = each(|i| match stage {
-                0 => t[p][i],
-                3 => t[p][i] + dt,
-                _ => t[p][i] + half,
-            });
-            let (k, tmp, scratch) = &mut bufs[p];
-            let src: &[Lane; M] = if stage == 0 { y[p] } else { tmp };
-            if let Err(s) = sys[p].rates(&at, src, &mut k[stage][..], scratch, active[p]) {
+            // The stage's times only for a system that reads them (a loop of scalar additions
+            // otherwise spent on nothing).
+            let at = if sys[p].timed() {
+                each(|i| match stage {
+                    0 => t[p][i],
+                    3 => t[p][i] + dt,
+                    _ => t[p][i] + half,
+                })
+            } else {
+                *t[p]
+            };
+            let Rk4Lanes { k, tmp, scratch, .. } = &mut *rk[p];
+            let src: &[Lane] = if stage == 0 { &y[p][..M] } else { &tmp[..M] };
+            if let Err(s) = sys[p].rates(&at, src, &mut k[stage][..M], scratch, active[p]) {
                 failed[p] = Some((stage, s.seen_in(src)));
             }
         }
         if stage < 3 {
             let h = if stage < 2 { half } else { dt };
             for p in 0..P {
-                let (k, tmp, _) = &mut bufs[p];
+                let Rk4Lanes { k, tmp, .. } = &mut *rk[p];
                 // Through locals: LLVM cannot tell the buffers apart, and with stores into one
                 // between loads from the others it kept every lane a scalar operation.
-                let (ks, y0) = (*k[stage], *y[p]);
+                let (ks, y0) = (fixed_of::<M>(&k[stage]), fixed_of::<M>(y[p]));
                 let mut next = [[0.0; LANES]; M];
                 for m in 0..M {
                     for i in 0..LANES {
                         next[m][i] = h.mul_add(ks[m][i], y0[m][i]);
                     }
                 }
-                **tmp = next;
+                tmp[..M].copy_from_slice(&next);
             }
         }
     }
@@ -375,9 +388,9 @@ fn fixed<const M: usize, const P: usize, S: LaneSystem>(
             continue;
         }
         let mut poison = [0.0; LANES];
-        let (k, _, _) = &bufs[p];
-        let [k1, k2, k3, k4] = [*k[0], *k[1], *k[2], *k[3]];
-        let y0 = *y[p];
+        let k = &rk[p].k;
+        let [k1, k2, k3, k4] = [fixed_of::<M>(&k[0]), fixed_of::<M>(&k[1]), fixed_of::<M>(&k[2]), fixed_of::<M>(&k[3])];
+        let y0 = fixed_of::<M>(y[p]);
         let mut next = [[0.0; LANES]; M];
         for m in 0..M {
             for i in 0..LANES {
@@ -402,8 +415,15 @@ fn fixed<const M: usize, const P: usize, S: LaneSystem>(
                 next[m][i] = if keep[i] > 0.0 { next[m][i] } else { y0[m][i] };
             }
         }
-        *y[p] = next;
+        y[p][..M].copy_from_slice(&next);
         out[p] = Ok(nonfinite);
     }
     out
+}
+
+/// The first `M` lanes of `v` by value (a plain function: `array::map`'s closures were a call
+/// per step, `try_map`, outside the callers' target features).
+#[inline(always)]
+fn fixed_of<const M: usize>(v: &[Lane]) -> [Lane; M] {
+    v[..M].try_into().expect("M lanes")
 }
