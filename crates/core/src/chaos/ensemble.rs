@@ -37,7 +37,7 @@ use crate::run::events::{Condition, EventSpec, Tracker};
 use crate::run::lanes::{lane_of, raw_row, LaneControl};
 use crate::run::simulate::Books;
 use crate::run::Settings;
-use crate::trig::lanes::{copy_lanes, on_path, Lane, Path, LANES};
+use crate::trig::lanes::{copy_lanes, max_abs, on_path, Lane, Path, LANES};
 use crate::watch::Watch;
 
 /// Rows per parallel task.
@@ -248,11 +248,8 @@ fn rk4_rows(rows: &mut Rows, t_end: f64, dt: f64, watch: &Watch) -> Result<()> {
         }
         // Whether the lane's max |theta| was below pi at the start of the step (the event's
         // sign), and whether its first flip is found.
-        let mut below = [false; LANES];
+        let mut below = max_abs(&y, 0..n).map(|top| top < PI);
         let mut found = [false; LANES];
-        for j in 0..count {
-            below[j] = (0..n).all(|a| y[a][j].abs() < PI);
-        }
         for k in 0..steps {
             // Every step: a relaxed load against eight lanes' step of N links (long chains take
             // seconds per group, and Ctrl-C must be heard within a fraction of one).
@@ -269,36 +266,28 @@ fn rk4_rows(rows: &mut Rows, t_end: f64, dt: f64, watch: &Watch) -> Result<()> {
             if let Some(j) = (0..count).find(|&j| nonfinite[j]) {
                 return Err(rows.error(lo + j, t + h, NON_FINITE));
             }
-            // The largest |theta| of each lane, over whole lanes (vectorised), and a lane by
-            // lane look only when one of them has gone over the top for the first time.
-            let mut top = [0.0f64; LANES];
-            for v in &y[..n] {
-                for i in 0..LANES {
-                    top[i] = top[i].max(v[i].abs());
-                }
-            }
+            // Each lane's largest |theta|, and a lane by lane look only when one of them has gone
+            // over the top for the first time.
+            let top = max_abs(&y, 0..n);
             let mut news = false;
             for i in 0..LANES {
                 news |= below[i] & !(top[i] < PI) & !found[i];
             }
-            if !news {
-                for i in 0..LANES {
-                    below[i] = top[i] < PI;
+            if news {
+                for j in 0..count {
+                    if below[j] && !(top[j] < PI) && !found[j] {
+                        // The earliest crossing among the links that went over in this step.
+                        let at = (0..n)
+                            .filter(|&a| y[a][j].abs() >= PI)
+                            .map(|a| flip_time(t, h, (y0[a][j], y0[n + a][j]), (y[a][j], y[n + a][j])))
+                            .fold(f64::INFINITY, f64::min);
+                        rows.out.first_flip[lo + j] = at;
+                        found[j] = true;
+                    }
                 }
-                continue;
             }
-            for j in 0..count {
-                let now_below = (0..n).all(|a| y[a][j].abs() < PI);
-                if below[j] && !now_below && !found[j] {
-                    // The earliest crossing among the links that went over in this step.
-                    let at = (0..n)
-                        .filter(|&a| y[a][j].abs() >= PI)
-                        .map(|a| flip_time(t, h, (y0[a][j], y0[n + a][j]), (y[a][j], y[n + a][j])))
-                        .fold(f64::INFINITY, f64::min);
-                    rows.out.first_flip[lo + j] = at;
-                    found[j] = true;
-                }
-                below[j] = now_below;
+            for i in 0..LANES {
+                below[i] = top[i] < PI;
             }
         }
         for j in 0..count {

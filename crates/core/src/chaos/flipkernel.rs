@@ -34,7 +34,7 @@ use crate::error::{Error, Result};
 use crate::integrators::lanes::{failed_at, step_system_pair, ChainLanes as Equations, Rk4Lanes, Stepped};
 use crate::model::Chain;
 use crate::par::*;
-use crate::trig::lanes::{copy_lanes, each, on_path, sin_cos, Lane, Path, LANES};
+use crate::trig::lanes::{copy_lanes, each, max_abs, on_path, sin_cos, Lane, Path, LANES};
 use crate::watch::Watch;
 
 /// Trajectories per parallel task (each task refills its lanes from its own chunk).
@@ -369,15 +369,8 @@ impl ChainLanes {
         if let Some(i) = (0..LANES).find(|&i| nonfinite[i]) {
             return Err(Error::integration((self.step[i] + 1) as f64 * dt, NON_FINITE).of_trajectory(first + self.id[i]));
         }
-        // The largest |theta| of the watched links, link by link over whole lanes (vectorised;
-        // a test per lane and link was a seventh of the generic double pendulum's time).
-        let mut top = [0.0f64; LANES];
-        for &k in links {
-            let yk = &self.y[k];
-            for i in 0..LANES {
-                top[i] = top[i].max(yk[i].abs());
-            }
-        }
+        // The largest |theta| of the watched links.
+        let top = max_abs(&self.y, links.iter().copied());
         let mut event = false;
         for i in 0..LANES {
             self.step[i] += 1;

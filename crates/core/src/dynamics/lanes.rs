@@ -242,9 +242,7 @@ fn triple(chain: &Chain, theta: &[Lane], omega: &[Lane], tau: &[Lane], out: &mut
         let c23 = m12.mul_add(m13, -(d1 * m23));
         let det = d1.mul_add(c11, m12.mul_add(c12, m13 * c13));
         let inv = 1.0 / det;
-        a1[i] = c11.mul_add(r1, c12.mul_add(r2, c13 * r3)) * inv;
-        a2[i] = c12.mul_add(r1, c22.mul_add(r2, c23 * r3)) * inv;
-        a3[i] = c13.mul_add(r1, c23.mul_add(r2, c33 * r3)) * inv;
+        [a1[i], a2[i], a3[i]] = solve3([c11, c12, c13, c22, c23, c33], inv, [r1, r2, r3]);
         let on = active[i] > 0.0;
         let second = c11 > tol2;
         worst[i] = if on & !second {
@@ -259,6 +257,13 @@ fn triple(chain: &Chain, theta: &[Lane], omega: &[Lane], tau: &[Lane], out: &mut
     (out[0], out[1], out[2]) = (a1, a2, a3);
     s.adjugate = adj;
     verdict(&worst)
+}
+
+/// `A^-1 r` of a symmetric 3 x 3 `A` from its cofactors `C_11, C_12, C_13, C_22, C_23, C_33` and
+/// `1 / det A` (the triple pendulum's accelerations and their tangent).
+#[inline(always)]
+fn solve3([c11, c12, c13, c22, c23, c33]: [f64; 6], inv: f64, [r1, r2, r3]: [f64; 3]) -> [f64; 3] {
+    [c11.mul_add(r1, c12.mul_add(r2, c13 * r3)) * inv, c12.mul_add(r1, c22.mul_add(r2, c23 * r3)) * inv, c13.mul_add(r1, c23.mul_add(r2, c33 * r3)) * inv]
 }
 
 /// [`Chain::accelerations_impl`] (with `eliminate` and `substitute`) in lanes.
@@ -396,7 +401,8 @@ fn recursion(
 /// N = 3 its adjugate, which the solve reuses: the mass matrix is the same). The arithmetic of
 /// [`Chain::tangent_accelerations_into`] (`A d_theta_ddot = dr - (dA) theta_ddot`, every term a
 /// sum of `K_ab sin/cos(theta_a - theta_b)` against a vector), its five coupled sums fused into
-/// one pass up and one down; the double pendulum in closed form. Agrees with it to round-off.
+/// one pass up and one down, the rows then solved as the accelerations were (the elimination,
+/// or three links' adjugate); the double pendulum in closed form. Agrees with it to round-off.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 pub fn tangent(chain: &Chain, omega: &[Lane], accel: &[Lane], d_theta: &[Lane], d_omega: &[Lane], extra: Option<&[Lane]>, out: &mut [Lane], s: &LaneScratch) {
@@ -420,42 +426,37 @@ pub fn tangent(chain: &Chain, omega: &[Lane], accel: &[Lane], d_theta: &[Lane], 
         }
         out[a] = r;
     }
+    // Down the chain: the links below (suffix sums of h_b u_b n_b) complete each row.
     let mut q = [[0.0; LANES]; 10];
-    if n == 3 {
-        // The rows completed by the links below, then solved by the closed form's adjugate.
-        for a in (0..3).rev() {
-            let (sa, ca, w, dw, dth, acc, r) = (s.sin[a], s.cos[a], omega[a], d_omega[a], d_theta[a], accel[a], out[a]);
-            let (ha, la) = (h[a], l[a]);
-            let mut row = [0.0; LANES];
-            for i in 0..LANES {
-                let (c, sn, dt) = (ca[i], sa[i], dth[i]);
-                row[i] = r[i] + la * coupled(&q, i, c, sn, dt);
-                accumulate(&mut q, i, ha, c, sn, dt, (w[i], dw[i], acc[i]));
-            }
-            out[a] = row;
+    for a in (0..n).rev() {
+        let (sa, ca, w, dw, dth, acc, r) = (s.sin[a], s.cos[a], omega[a], d_omega[a], d_theta[a], accel[a], out[a]);
+        let (ha, la) = (h[a], l[a]);
+        let mut row = [0.0; LANES];
+        for i in 0..LANES {
+            let (c, sn, dt) = (ca[i], sa[i], dth[i]);
+            row[i] = r[i] + la * coupled(&q, i, c, sn, dt);
+            accumulate(&mut q, i, ha, c, sn, dt, (w[i], dw[i], acc[i]));
         }
+        out[a] = row;
+    }
+    if n == 3 {
+        // Solved by the closed form's adjugate.
         let [c11, c12, c13, c22, c23, c33, inv] = &s.adjugate;
         let (r1, r2, r3) = (out[0], out[1], out[2]);
         for i in 0..LANES {
-            out[0][i] = c11[i].mul_add(r1[i], c12[i].mul_add(r2[i], c13[i] * r3[i])) * inv[i];
-            out[1][i] = c12[i].mul_add(r1[i], c22[i].mul_add(r2[i], c23[i] * r3[i])) * inv[i];
-            out[2][i] = c13[i].mul_add(r1[i], c23[i].mul_add(r2[i], c33[i] * r3[i])) * inv[i];
+            [out[0][i], out[1][i], out[2][i]] = solve3([c11[i], c12[i], c13[i], c22[i], c23[i], c33[i]], inv[i], [r1[i], r2[i], r3[i]]);
         }
         return;
     }
-    // Down the chain: the links below (suffix sums of h_b u_b n_b) complete each row, which the
-    // elimination (its pivots and u from the accelerations) takes at once.
+    // The rows through the accelerations' elimination (its pivots and u), then substituted.
     let (mut wx, mut wy) = ([0.0; LANES], [0.0; LANES]);
     for a in (0..n).rev() {
-        let (sa, ca, w, dw, dth, acc) = (s.sin[a], s.cos[a], omega[a], d_omega[a], d_theta[a], accel[a]);
-        let (uxi, uyi, inv, r) = (s.uxi[a], s.uyi[a], s.dinv[a], out[a]);
-        let (ha, la) = (h[a], l[a]);
+        let (sa, ca, row) = (s.sin[a], s.cos[a], out[a]);
+        let (uxi, uyi, inv, la) = (s.uxi[a], s.uyi[a], s.dinv[a], l[a]);
         let mut rhoi = [0.0; LANES];
         for i in 0..LANES {
-            let (c, sn, dt) = (ca[i], sa[i], dth[i]);
-            let row = r[i] + la * coupled(&q, i, c, sn, dt);
-            accumulate(&mut q, i, ha, c, sn, dt, (w[i], dw[i], acc[i]));
-            let rh = row - la * (c * wx[i] + sn * wy[i]);
+            let (c, sn) = (ca[i], sa[i]);
+            let rh = row[i] - la * (c * wx[i] + sn * wy[i]);
             wx[i] = uxi[i].mul_add(rh, wx[i]);
             wy[i] = uyi[i].mul_add(rh, wy[i]);
             rhoi[i] = rh * inv[i];

@@ -324,7 +324,8 @@ pub fn step_system_pair<S: LaneSystem>(
 }
 
 /// [`Rk4Lanes::step_system_at`] of `P` groups of a system of `M` lanes, side by side, in each
-/// group's own buffers (its stages and stage state; nothing zeroed or copied per step) with
+/// group's own buffers (its stages and stage state; nothing zeroed per step, each update
+/// computed in a local array and stored whole) with
 /// loops of the compile-time length `M`: for each group, operation for operation the same step
 /// as alone. A group whose rates fail at a stage stops there (its state unchanged); the others
 /// go on.

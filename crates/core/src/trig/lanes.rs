@@ -50,6 +50,21 @@ pub fn copy_lanes(dst: &mut [Lane], src: &[Lane]) {
     }
 }
 
+/// Each lane's largest `|y[k]|` over the entries `which` of `y`, whole lanes at a time (so
+/// vectorised: a test per lane and entry was a seventh of the generic double pendulum's flip
+/// lanes' time). A NaN entry is passed over: callers reject non-finite states first.
+#[inline(always)]
+pub fn max_abs(y: &[Lane], which: impl IntoIterator<Item = usize>) -> Lane {
+    let mut top = [0.0f64; LANES];
+    for k in which {
+        let yk = &y[k];
+        for i in 0..LANES {
+            top[i] = top[i].max(yk[i].abs());
+        }
+    }
+    top
+}
+
 /// A compiled copy of the kernel.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Path {
