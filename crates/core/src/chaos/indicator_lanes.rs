@@ -219,6 +219,8 @@ impl LaneSystem for TangentLanes<'_> {
         } else {
             self.tau
         };
+        // The tangents below read the accelerations' trig (and a triple pendulum's adjugate).
+        scratch.for_tangent = true;
         accelerations(chain, &src[..n], &src[n..d], forces, &mut head[n..], scratch, active)?;
         for j in 0..k {
             let v = &src[d * (j + 1)..d * (j + 2)];

@@ -27,6 +27,10 @@ pub struct LaneScratch {
     /// `sin` and `cos` hold the angles' trig already ([`LaneScratch::trig_of`]): the next
     /// accelerations take it instead of computing it again (and clear this).
     known: bool,
+    /// A tangent follows at these angles ([`tangent`]): the accelerations leave the angles'
+    /// trig and the triple pendulum's adjugate here for it. Without one they are dead stores,
+    /// a tenth of the stores of the triple pendulum's rk4 step, and are skipped.
+    pub(crate) for_tangent: bool,
     /// The triple pendulum's closed form ([`triple`]): its mass matrix's cofactors `C_11, C_12,
     /// C_13, C_22, C_23, C_33` and `1 / det`, for the tangent's solve.
     adjugate: [Lane; 7],
@@ -35,7 +39,7 @@ pub struct LaneScratch {
 impl LaneScratch {
     pub fn new(n: usize) -> Self {
         let z = vec![[0.0; LANES]; n];
-        LaneScratch { sin: z.clone(), cos: z.clone(), uxi: z.clone(), uyi: z.clone(), dinv: z, known: false, adjugate: [[0.0; LANES]; 7] }
+        LaneScratch { sin: z.clone(), cos: z.clone(), uxi: z.clone(), uyi: z.clone(), dinv: z, known: false, for_tangent: false, adjugate: [[0.0; LANES]; 7] }
     }
 
     /// The angles' `sin` and `cos`, computed once for the forces of a moving pivot and the
@@ -131,12 +135,14 @@ pub fn accelerations_on(
 /// the loops cost the generic double pendulum's lanes a fifth of their time in mask conversions.
 #[inline(always)]
 fn verdict(worst: &Lane) -> Result<(), LaneSingular> {
-    // Whether any lane failed first, one vector comparison; the first link only then.
-    let mut any = false;
+    // Whether every lane passed (all -1: every sign bit set), the sign bits ANDed together (a
+    // test per lane, `any |= w >= 0`, compiled to eight scalar comparisons and branches); the
+    // first link only where one failed.
+    let mut signs = u64::MAX;
     for w in worst {
-        any |= *w >= 0.0;
+        signs &= w.to_bits();
     }
-    if !any {
+    if signs >> 63 == 1 {
         return Ok(());
     }
     let first = worst.iter().fold(-1.0f64, |a, &w| if w > a { w } else { a });
@@ -161,8 +167,9 @@ fn double(
     let tol = PIVOT_TOL * d1 * d2;
     let ((s1, c1), (s2, c2)) =
         if std::mem::take(&mut s.known) { ((s.sin[0], s.cos[0]), (s.sin[1], s.cos[1])) } else { (sin_cos(&theta[0]), sin_cos(&theta[1])) };
-    // Kept for the tangent ([`tangent`]) at the same angles.
-    (s.sin[0], s.cos[0], s.sin[1], s.cos[1]) = (s1, c1, s2, c2);
+    if s.for_tangent {
+        (s.sin[0], s.cos[0], s.sin[1], s.cos[1]) = (s1, c1, s2, c2);
+    }
     let mut worst = [-1.0f64; LANES];
     let (mut a0, mut a1, mut xdd) = ([0.0; LANES], [0.0; LANES], [0.0; LANES]);
     let total = chain.cart.map_or(0.0, |c| c.mass) + chain.total_mass();
@@ -214,12 +221,16 @@ fn triple(chain: &Chain, theta: &[Lane], omega: &[Lane], tau: &[Lane], out: &mut
     let (k12, k13, k23) = (l[0] * h[1], l[0] * h[2], l[1] * h[2]);
     let (gh1, gh2, gh3) = (g * h[0], g * h[1], g * h[2]);
     let (tol2, tol1) = (PIVOT_TOL * d2 * d3, PIVOT_TOL * d1);
-    if !std::mem::take(&mut s.known) {
-        for a in 0..3 {
-            (s.sin[a], s.cos[a]) = sin_cos(&theta[a]);
+    let ([s1, s2, s3], [c1, c2, c3]) = if std::mem::take(&mut s.known) {
+        ([s.sin[0], s.sin[1], s.sin[2]], [s.cos[0], s.cos[1], s.cos[2]])
+    } else {
+        let [(s1, c1), (s2, c2), (s3, c3)] = [sin_cos(&theta[0]), sin_cos(&theta[1]), sin_cos(&theta[2])];
+        if s.for_tangent {
+            s.sin[..3].copy_from_slice(&[s1, s2, s3]);
+            s.cos[..3].copy_from_slice(&[c1, c2, c3]);
         }
-    }
-    let ([s1, s2, s3], [c1, c2, c3]) = ([s.sin[0], s.sin[1], s.sin[2]], [s.cos[0], s.cos[1], s.cos[2]]);
+        ([s1, s2, s3], [c1, c2, c3])
+    };
     let ([w1, w2, w3], [t1, t2, t3]) = ([omega[0], omega[1], omega[2]], [tau[0], tau[1], tau[2]]);
     let mut worst = [-1.0f64; LANES];
     let (mut a1, mut a2, mut a3) = ([0.0; LANES], [0.0; LANES], [0.0; LANES]);
@@ -255,7 +266,9 @@ fn triple(chain: &Chain, theta: &[Lane], omega: &[Lane], tau: &[Lane], out: &mut
         (adj[0][i], adj[1][i], adj[2][i], adj[3][i], adj[4][i], adj[5][i], adj[6][i]) = (c11, c12, c13, c22, c23, c33, inv);
     }
     (out[0], out[1], out[2]) = (a1, a2, a3);
-    s.adjugate = adj;
+    if s.for_tangent {
+        s.adjugate = adj;
+    }
     verdict(&worst)
 }
 
@@ -406,6 +419,7 @@ fn recursion(
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 pub fn tangent(chain: &Chain, omega: &[Lane], accel: &[Lane], d_theta: &[Lane], d_omega: &[Lane], extra: Option<&[Lane]>, out: &mut [Lane], s: &LaneScratch) {
+    debug_assert!(s.for_tangent, "the accelerations were not told that a tangent follows");
     if chain.n() == 2 {
         return tangent_double(chain, omega, accel, d_theta, d_omega, extra, out, s);
     }
@@ -707,6 +721,7 @@ mod tests {
             }
             let mut out = vec![[0.0; LANES]; n];
             let mut scratch = LaneScratch::new(n);
+            scratch.for_tangent = true;
             accelerations(&chain, &th, &om, &tau, &mut out, &mut scratch, &[1.0; LANES]).unwrap();
             let (mut dth, mut dom) = (vec![[0.0; LANES]; n], vec![[0.0; LANES]; n]);
             for a in 0..n {
@@ -795,6 +810,7 @@ mod tests {
             let (mut q, mut power) = (vec![[0.0; LANES]; n], [0.0; LANES]);
             add_losses(&chain, &om, &mut q, &mut power);
             let (mut acc, mut scratch) = (vec![[0.0; LANES]; n], LaneScratch::new(n));
+            scratch.for_tangent = true;
             accelerations(&chain, &th, &om, &q, &mut acc, &mut scratch, &[1.0; LANES]).unwrap();
             let mut dq = vec![[0.0; LANES]; n];
             add_loss_tangent(&chain, &om, &dom, &mut dq);
