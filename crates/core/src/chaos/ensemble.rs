@@ -248,8 +248,8 @@ fn rk4_rows(rows: &mut Rows, t_end: f64, dt: f64, watch: &Watch) -> Result<()> {
         }
         // Whether the lane's max |theta| was below pi at the start of the step (the event's
         // sign), and whether its first flip is found.
-        let mut below = max_abs(&y, 0..n).map(|top| top < PI);
-        let mut found = [false; LANES];
+        let mut below = under_pi(&max_abs(&y, 0..n));
+        let mut found = 0u32;
         for k in 0..steps {
             // Every step: a relaxed load against eight lanes' step of N links (long chains take
             // seconds per group, and Ctrl-C must be heard within a fraction of one).
@@ -267,34 +267,37 @@ fn rk4_rows(rows: &mut Rows, t_end: f64, dt: f64, watch: &Watch) -> Result<()> {
                 return Err(rows.error(lo + j, t + h, NON_FINITE));
             }
             // Each lane's largest |theta|, and a lane by lane look only when one of them has gone
-            // over the top for the first time.
-            let top = max_abs(&y, 0..n);
-            let mut news = false;
-            for i in 0..LANES {
-                news |= below[i] & !(top[i] < PI) & !found[i];
-            }
-            if news {
-                for j in 0..count {
-                    if below[j] && !(top[j] < PI) && !found[j] {
-                        // The earliest crossing among the links that went over in this step.
-                        let at = (0..n)
-                            .filter(|&a| y[a][j].abs() >= PI)
-                            .map(|a| flip_time(t, h, (y0[a][j], y0[n + a][j]), (y[a][j], y[n + a][j])))
-                            .fold(f64::INFINITY, f64::min);
-                        rows.out.first_flip[lo + j] = at;
-                        found[j] = true;
-                    }
+            // over the top for the first time (bit masks: arrays of bool cost byte conversions).
+            let now = under_pi(&max_abs(&y, 0..n));
+            let news = below & !now & !found;
+            if news != 0 {
+                for j in (0..count).filter(|&j| news >> j & 1 == 1) {
+                    // The earliest crossing among the links that went over in this step.
+                    let at = (0..n)
+                        .filter(|&a| y[a][j].abs() >= PI)
+                        .map(|a| flip_time(t, h, (y0[a][j], y0[n + a][j]), (y[a][j], y[n + a][j])))
+                        .fold(f64::INFINITY, f64::min);
+                    rows.out.first_flip[lo + j] = at;
                 }
+                found |= news;
             }
-            for i in 0..LANES {
-                below[i] = top[i] < PI;
-            }
+            below = now;
         }
         for j in 0..count {
             rows.finish(lo + j, &y, j, t_end, steps)?;
         }
     }
     Ok(())
+}
+
+/// The lanes whose `top` is under pi, as bits (lane `i`, bit `i`).
+#[inline(always)]
+fn under_pi(top: &Lane) -> u32 {
+    let mut bits = 0u32;
+    for (i, v) in top.iter().enumerate() {
+        bits |= u32::from(*v < PI) << i;
+    }
+    bits
 }
 
 /// dop853 with a step per lane, as the run driver's controlled steps (the same first step,

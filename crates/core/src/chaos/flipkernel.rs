@@ -371,12 +371,13 @@ impl ChainLanes {
         }
         // The largest |theta| of the watched links.
         let top = max_abs(&self.y, links.iter().copied());
-        let mut event = false;
+        // Whether any lane has an event, as bits (an `any |=` compiles to a branch per lane).
+        let mut event = 0u32;
         for i in 0..LANES {
             self.step[i] += 1;
-            event |= (self.active[i] > 0.0) & ((top[i] >= PI) | (self.step[i] >= steps));
+            event |= u32::from((self.active[i] > 0.0) & ((top[i] >= PI) | (self.step[i] >= steps))) << i;
         }
-        if !event {
+        if event == 0 {
             return Ok(());
         }
         for i in 0..LANES {
