@@ -11,6 +11,7 @@ use crate::dynamics::lanes::{accelerations, accelerations_on, add_losses, add_pi
 use crate::dynamics::torque::Timed;
 use crate::model::Chain;
 use crate::trig::lanes::{copy_lanes, each, Lane, LANES};
+use std::ops::Index;
 
 /// A system of lanes built on a chain's accelerations. A trait rather than a closure: its
 /// `#[inline(always)]` method is compiled inside the caller's `#[target_feature]` wrapper, where
@@ -366,15 +367,14 @@ fn fixed<const M: usize, const P: usize, S: LaneSystem>(
             let h = if stage < 2 { half } else { dt };
             for p in 0..P {
                 let Rk4Lanes { k, tmp, .. } = &mut *rk[p];
-                // Through locals: LLVM cannot tell the buffers apart, and with stores into one
-                // between loads from the others it kept every lane a scalar operation.
-                let (ks, y0) = (fixed_of::<M>(&k[stage]), fixed_of::<M>(y[p]));
-                let mut next = [[0.0; LANES]; M];
-                for m in 0..M {
-                    for i in 0..LANES {
-                        next[m][i] = h.mul_add(ks[m][i], y0[m][i]);
-                    }
-                }
+                // Into a local, copied out after: LLVM cannot tell the buffers apart, and with
+                // stores into one between loads from the others it kept every lane a scalar
+                // operation.
+                let next = if M <= IN_REGISTERS {
+                    stage_state::<M, _>(h, &fixed_of::<M>(&k[stage]), &fixed_of::<M>(y[p]))
+                } else {
+                    stage_state::<M, _>(h, &k[stage][..M], &y[p][..M])
+                };
                 tmp[..M].copy_from_slice(&next);
             }
         }
@@ -388,43 +388,106 @@ fn fixed<const M: usize, const P: usize, S: LaneSystem>(
             out[p] = Err(f);
             continue;
         }
-        let mut poison = [0.0; LANES];
         let k = &rk[p].k;
-        let [k1, k2, k3, k4] = [fixed_of::<M>(&k[0]), fixed_of::<M>(&k[1]), fixed_of::<M>(&k[2]), fixed_of::<M>(&k[3])];
-        let y0 = fixed_of::<M>(y[p]);
-        let mut next = [[0.0; LANES]; M];
-        for m in 0..M {
-            for i in 0..LANES {
-                next[m][i] = sixth.mul_add(2.0f64.mul_add(k2[m][i] + k3[m][i], k1[m][i]) + k4[m][i], y0[m][i]);
+        let mut poison = [0.0; LANES];
+        // Lanes that are inactive or went non-finite keep their state.
+        let nonfinite = if M <= IN_REGISTERS {
+            let y0 = fixed_of::<M>(y[p]);
+            let [k1, k2, k3, k4] = [fixed_of::<M>(&k[0]), fixed_of::<M>(&k[1]), fixed_of::<M>(&k[2]), fixed_of::<M>(&k[3])];
+            let mut next = weighted_sum::<M, _>(sixth, [&k1, &k2, &k3, &k4], &y0);
+            // A pass of its own: inside the sum, LLVM vectorised it across the state's
+            // components (two lanes at a time) instead of the lanes.
+            for v in &next {
+                for i in 0..LANES {
+                    poison[i] += v[i] * 0.0;
+                }
             }
-        }
-        // A pass of its own: in the loop above, LLVM vectorised across the state's components
-        // (two lanes at a time) instead of the lanes.
-        for v in &next {
-            for i in 0..LANES {
-                poison[i] += v[i] * 0.0;
+            let (keep, nonfinite) = verdicts(active[p], &poison);
+            for m in 0..M {
+                for i in 0..LANES {
+                    next[m][i] = if keep[i] > 0.0 { next[m][i] } else { y0[m][i] };
+                }
             }
-        }
-        let (mut keep, mut nonfinite) = ([0.0; LANES], [false; LANES]);
-        for i in 0..LANES {
-            let (on, finite) = (active[p][i] > 0.0, poison[i] == 0.0);
-            keep[i] = if on & finite { 1.0 } else { 0.0 };
-            nonfinite[i] = on & !finite;
-        }
-        for m in 0..M {
-            for i in 0..LANES {
-                next[m][i] = if keep[i] > 0.0 { next[m][i] } else { y0[m][i] };
+            y[p][..M].copy_from_slice(&next);
+            nonfinite
+        } else {
+            // Straight from the buffers, the sum of `v * 0` row by row (as a pass of its own it
+            // compiled to scalar operations here).
+            let (k1, k2, k3, k4, y0) = (&k[0][..M], &k[1][..M], &k[2][..M], &k[3][..M], &y[p][..M]);
+            let mut next = [[0.0; LANES]; M];
+            for m in 0..M {
+                let mut row = [0.0; LANES];
+                for i in 0..LANES {
+                    row[i] = sixth.mul_add(2.0f64.mul_add(k2[m][i] + k3[m][i], k1[m][i]) + k4[m][i], y0[m][i]);
+                }
+                for i in 0..LANES {
+                    poison[i] += row[i] * 0.0;
+                }
+                next[m] = row;
             }
-        }
-        y[p][..M].copy_from_slice(&next);
+            let (keep, nonfinite) = verdicts(active[p], &poison);
+            let state = &mut y[p][..M];
+            for m in 0..M {
+                for i in 0..LANES {
+                    state[m][i] = if keep[i] > 0.0 { next[m][i] } else { state[m][i] };
+                }
+            }
+            nonfinite
+        };
         out[p] = Ok(nonfinite);
     }
     out
 }
+
+/// The largest state (components of [`Lane`]) whose rk4 sums take their operands by value,
+/// copied out of the buffers: LLVM then keeps them in registers and interleaves two groups'
+/// sums (the double pendulum's four components; measured). Larger states take them straight
+/// from the buffers: their copies went through the stack (the triple pendulum's six: thirty
+/// vector loads and stores a step).
+const IN_REGISTERS: usize = 4;
 
 /// The first `M` lanes of `v` by value (a plain function: `array::map`'s closures were a call
 /// per step, `try_map`, outside the callers' target features).
 #[inline(always)]
 fn fixed_of<const M: usize>(v: &[Lane]) -> [Lane; M] {
     v[..M].try_into().expect("M lanes")
+}
+
+/// A stage's state `y0 + h k` into a local (LLVM cannot tell the buffers apart: with stores into
+/// one between loads from the others it kept every lane a scalar operation).
+#[inline(always)]
+fn stage_state<const M: usize, A: Index<usize, Output = Lane> + ?Sized>(h: f64, k: &A, y0: &A) -> [Lane; M] {
+    let mut next = [[0.0; LANES]; M];
+    for m in 0..M {
+        for i in 0..LANES {
+            next[m][i] = h.mul_add(k[m][i], y0[m][i]);
+        }
+    }
+    next
+}
+
+/// rk4's new state `y0 + h/6 (k1 + 2 (k2 + k3) + k4)` (`sixth` = h/6) into a local.
+#[inline(always)]
+fn weighted_sum<const M: usize, A: Index<usize, Output = Lane> + ?Sized>(sixth: f64, [k1, k2, k3, k4]: [&A; 4], y0: &A) -> [Lane; M] {
+    let mut next = [[0.0; LANES]; M];
+    for m in 0..M {
+        for i in 0..LANES {
+            next[m][i] = sixth.mul_add(2.0f64.mul_add(k2[m][i] + k3[m][i], k1[m][i]) + k4[m][i], y0[m][i]);
+        }
+    }
+    next
+}
+
+/// Which lanes take their new state (active and finite: `poison`, the sum of `v * 0` over the
+/// state, is 0 exactly where every `v` is finite) as 1.0 or 0.0, and which active lanes went
+/// non-finite.
+#[inline(always)]
+fn verdicts(active: &Lane, poison: &Lane) -> (Lane, [bool; LANES]) {
+    let (mut keep, mut nonfinite) = ([0.0; LANES], [false; LANES]);
+    for i in 0..LANES {
+        let (on, finite) = (active[i] > 0.0, poison[i] == 0.0);
+        keep[i] = if on & finite { 1.0 } else { 0.0 };
+        nonfinite[i] = on & !finite;
+    }
+    (keep, nonfinite)
 }
