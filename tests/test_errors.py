@@ -45,6 +45,9 @@ def test_rods_with_mismatched_sizes():
     ([0.1, np.nan], [0, 0], "theta0[1] must be finite, got nan"),
     ([0.1, 0.2], [np.inf, 0], "omega0[0] must be finite, got inf"),
     ([0.1, -1e300], [0, 0], "theta0[1] must be within +-1e+15 rad, got -1e+300"),
+    # A batch names the entry as NumPy indexes it.
+    ([[0.1, 0.2], [np.nan, 0.3]], [[0, 0], [0, 0]], "theta0[1, 0] must be finite, got nan"),
+    ([[0.1, 0.2], [0.1, 0.3]], [[0, 0], [0, -np.inf]], "omega0[1, 1] must be finite, got -inf"),
     ([0.1, 0.2, 0.3], [0, 0, 0], "theta0 must have shape (2,) or (..., 2) (one entry per link), got shape (3,)"),
     ([0.1, 0.2], [0, 0, 0], "omega0 must have shape (2,) or (..., 2) (one entry per link), got shape (3,)"),
     ([[0.1, 0.2]], [0, 0], "theta0 and omega0 must have the same shape, got (1, 2) and (2,)"),

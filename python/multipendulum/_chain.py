@@ -50,7 +50,7 @@ def as_state(x: npt.ArrayLike, name: str, n: int) -> npt.NDArray[np.float64]:
                       (np.abs(a) > MAX_STATE if theta else np.zeros(a.shape, bool), f"must be within +-{MAX_STATE:.0e} rad")):
         if bad.any():
             idx = tuple(int(i) for i in np.argwhere(bad)[0])
-            raise InputError(f"{name}[{idx[0] if len(idx) == 1 else idx}] {what}, got {a[idx]}")
+            raise InputError(f"{name}[{', '.join(map(str, idx))}] {what}, got {a[idx]}")
     return a
 
 
